@@ -1,0 +1,29 @@
+"""elastoplast: reference solutions of C. Johnson's elasto-plastic contact problem.
+
+The data flows mesh -> discretisation -> solver -> certificate -> output::
+
+    import elastoplast as ep
+    problem = ep.load_problem("problems/cylinder_2d.toml")
+    disc = ep.discretize(problem)
+    sol = ep.solve(disc, method="conic")
+    print(sol.U, sol.kkt.worst)
+"""
+
+from .certificate import KKTResiduals, certify
+from .conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
+from .discretize import Discretization, discretize
+from .errors import InputError
+from .material import Material, return_mapping, von_mises
+from .mesh import Mesh, read_mesh, structured_mesh
+from .problem import Boundary, Obstacle, Problem, load_problem, make_material, problem_from_dict
+from .solution import Solution, Status, make_solution, summary
+from .solvers import METHODS, solve
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Boundary", "ConicOptions", "Discretization", "InputError", "KKTResiduals", "METHODS", "Material", "Mesh",
+    "Obstacle", "Problem", "Solution", "Status", "certify", "discretize", "load_problem", "make_material",
+    "make_solution", "problem_from_dict", "read_mesh", "return_mapping", "solve", "solve_conic",
+    "solve_conic_cvxpy", "solve_conic_displacement", "structured_mesh", "summary", "von_mises",
+]

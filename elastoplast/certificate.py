@@ -1,0 +1,115 @@
+"""Solver-independent KKT certificate of (2.1) (MATH.md section 6).
+
+:func:`certify` takes any candidate ``(sigma, xi, u, U)`` (and optionally the
+contact forces the solver claims) and measures how far it is from the discrete
+solution. It uses nothing but the discretisation and the return mapping, so the
+same check applies to every solver.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .discretize import Discretization
+from .material import return_mapping
+
+
+@dataclass(frozen=True)
+class KKTResiduals:
+    """Relative KKT residuals of a candidate, each with its scale.
+
+    With ``r = sum_T |T| B_T^T sigma_T`` on the free dofs, ``lam`` the contact
+    forces (given, or ``r`` at the vertical contact dofs), ``g = u_d + psi - U``
+    the gaps and ``delta = max(|U|, max|u|)`` the displacement scale:
+
+    * ``constitutive``: ``||sigma_hat - R(eps(u))||_E / ||R(eps(u))||_E`` in the
+      energy norm ``[.,.]`` (the xi part is dropped when H = 0);
+    * ``equilibrium``: ``||r - N^T lam||_2 / ||s||_2`` over the free dofs, where
+      ``s`` sums the magnitudes ``| |T| B_T^T sigma_T |`` of the element
+      contributions at each dof;
+    * ``force_balance``: ``|sum lam - F| / F``;
+    * ``sign``: ``sum max(-lam, 0) / F``;
+    * ``penetration``: ``max(-g, 0).max() / delta``;
+    * ``complementarity``: ``sum |lam g| / (F delta)``;
+    * ``dirichlet``: ``max |u| over fixed dofs / delta``.
+    """
+
+    constitutive: float
+    equilibrium: float
+    force_balance: float
+    sign: float
+    penetration: float
+    complementarity: float
+    dirichlet: float
+
+    @property
+    def worst(self) -> float:
+        return max(self.as_dict().values())
+
+    def as_dict(self) -> dict[str, float]:
+        return {k: float(v) for k, v in asdict(self).items()}
+
+
+def energy_norm_sq(disc: Discretization, sigma: np.ndarray, xi: np.ndarray) -> float:
+    """``[sigma_hat, sigma_hat] = sum_T |T| (sigma A sigma + xi^2 / H)``."""
+    A = disc.material.compliance(disc.dim)
+    val = np.einsum("ei,ij,ej,e->", sigma, A, sigma, disc.volumes)
+    H = disc.material.hardening
+    if H > 0:
+        val += np.sum(disc.volumes * xi**2) / H
+    return float(val)
+
+
+def gaps(disc: Discretization, u_free: np.ndarray, U: float) -> np.ndarray:
+    """``g_i = u_d(x_i) + psi_i - U`` at the contact nodes."""
+    return disc.N @ u_free + disc.psi - U
+
+
+def contact_forces(disc: Discretization, sigma: np.ndarray) -> np.ndarray:
+    """Contact forces implied by the stresses: ``r`` at the vertical contact dofs."""
+    return disc.N @ disc.internal_force(sigma)
+
+
+def certify(
+    disc: Discretization,
+    sigma: np.ndarray,
+    xi: np.ndarray,
+    u: np.ndarray,
+    U: float,
+    contact_force: np.ndarray | None = None,
+) -> KKTResiduals:
+    """KKT residuals of the candidate; ``u`` is nodal ``(n_nodes, d)``.
+
+    The candidate's origin does not matter: no solver output other than these
+    arrays is used.
+    """
+    sigma = np.asarray(sigma, dtype=float).reshape(disc.n_elements, disc.k)
+    xi = np.asarray(xi, dtype=float).reshape(disc.n_elements)
+    u_all = np.asarray(u, dtype=float).reshape(-1)
+    u_free = u_all[disc.free]
+    F = disc.force
+
+    sigma_R, xi_R, _ = return_mapping(disc.material, disc.strain(u_free))
+    ref = energy_norm_sq(disc, sigma_R, xi_R)
+    diff = energy_norm_sq(disc, sigma - sigma_R, xi - xi_R)
+    constitutive = np.sqrt(diff / ref) if ref > 0 else np.sqrt(diff)
+
+    r = disc.internal_force(sigma)
+    lam = disc.N @ r if contact_force is None else np.asarray(contact_force, dtype=float)
+    magnitude = abs(disc.B.T) @ np.abs(sigma * disc.volumes[:, None]).ravel()
+    res = r - disc.N.T @ lam
+    equilibrium = np.linalg.norm(res) / max(np.linalg.norm(magnitude), np.finfo(float).tiny)
+
+    g = gaps(disc, u_free, U)
+    delta = max(abs(U), np.abs(u_all).max(initial=0.0), np.finfo(float).tiny)
+    return KKTResiduals(
+        constitutive=float(constitutive),
+        equilibrium=float(equilibrium),
+        force_balance=float(abs(lam.sum() - F) / F),
+        sign=float(np.maximum(-lam, 0.0).sum() / F),
+        penetration=float(np.maximum(-g, 0.0).max(initial=0.0) / delta),
+        complementarity=float(np.abs(lam * g).sum() / (F * delta)),
+        dirichlet=float(np.abs(u_all[disc.fixed]).max(initial=0.0) / delta),
+    )

@@ -1,0 +1,334 @@
+"""Discrete operators of (2.1): P1 displacements, P0 stresses (MATH.md section 4).
+
+Everything is vectorised over elements; each global operator is one sparse build.
+Degrees of freedom are numbered ``node * d + component``; ``free`` lists the
+ones not fixed by a Dirichlet condition and every operator acts on those.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import factorial
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from .errors import InputError
+from .material import Material, n_components
+from .mesh import Mesh, _boundary_facets
+from .problem import Problem
+
+INV_SQRT2 = 1.0 / np.sqrt(2.0)
+
+# Mandel rows of eps = sym(grad u) as (component, derivative, weight) triples.
+_STRAIN_ROWS = {
+    2: [[(0, 0, 1.0)], [(1, 1, 1.0)], [], [(0, 1, INV_SQRT2), (1, 0, INV_SQRT2)]],
+    3: [
+        [(0, 0, 1.0)],
+        [(1, 1, 1.0)],
+        [(2, 2, 1.0)],
+        [(1, 2, INV_SQRT2), (2, 1, INV_SQRT2)],
+        [(0, 2, INV_SQRT2), (2, 0, INV_SQRT2)],
+        [(0, 1, INV_SQRT2), (1, 0, INV_SQRT2)],
+    ],
+}
+
+
+@dataclass(frozen=True)
+class Discretization:
+    """The data of the discrete problem (2.1) for one :class:`Problem`.
+
+    ``B`` maps free dofs to element strains stacked element by element
+    (``(n_el * k, n_free)``), ``volumes`` are ``|T|``, ``N`` picks the vertical
+    dof of each contact node (``(n_contact, n_free)``), ``psi`` is the obstacle
+    at the contact nodes and ``contact_area`` their lumped share of the flat
+    boundary ``x_d = 0`` (used only to turn forces into pressures).
+    """
+
+    problem: Problem
+    volumes: np.ndarray
+    B: sp.csr_matrix
+    free: np.ndarray
+    fixed: np.ndarray
+    contact_nodes: np.ndarray
+    N: sp.csr_matrix
+    psi: np.ndarray
+    contact_area: np.ndarray
+
+    @property
+    def mesh(self) -> Mesh:
+        return self.problem.mesh
+
+    @property
+    def material(self) -> Material:
+        return self.problem.material
+
+    @property
+    def dim(self) -> int:
+        return self.problem.mesh.dim
+
+    @property
+    def k(self) -> int:
+        return n_components(self.dim)
+
+    @property
+    def n_elements(self) -> int:
+        return self.volumes.size
+
+    @property
+    def n_free(self) -> int:
+        return self.free.size
+
+    @property
+    def n_contact(self) -> int:
+        return self.contact_nodes.size
+
+    @property
+    def force(self) -> float:
+        return self.problem.force
+
+    @property
+    def length_scale(self) -> float:
+        """Largest extent of the body: the length unit used for scaling."""
+        pts = self.mesh.points
+        return float(np.max(pts.max(axis=0) - pts.min(axis=0)))
+
+    def strain(self, u_free: np.ndarray) -> np.ndarray:
+        """Element strains ``(n_el, k)`` of free-dof displacements."""
+        return (self.B @ u_free).reshape(self.n_elements, self.k)
+
+    def internal_force(self, sigma: np.ndarray) -> np.ndarray:
+        """``r = sum_T |T| B_T^T sigma_T`` on the free dofs."""
+        return self.B.T @ (sigma * self.volumes[:, None]).ravel()
+
+    def full_displacement(self, u_free: np.ndarray) -> np.ndarray:
+        """Nodal displacements ``(n_nodes, d)`` with zeros at fixed dofs."""
+        u = np.zeros(self.mesh.n_nodes * self.dim)
+        u[self.free] = u_free
+        return u.reshape(-1, self.dim)
+
+    def free_displacement(self, u: np.ndarray) -> np.ndarray:
+        return np.asarray(u, dtype=float).reshape(-1)[self.free]
+
+    def contact_radii(self) -> np.ndarray:
+        """Distance of each contact node from the obstacle centre in the plane."""
+        xp = self.mesh.points[self.contact_nodes, :-1]
+        return np.linalg.norm(xp - np.asarray(self.problem.obstacle.center), axis=1)
+
+    def with_force(self, force: float) -> "Discretization":
+        """The same operators for another load (nothing is rebuilt)."""
+        from dataclasses import replace
+
+        return replace(self, problem=replace(self.problem, force=float(force)))
+
+
+def _element_geometry(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """``(volumes, gradients)``; refuses degenerate and inverted simplices."""
+    d = mesh.dim
+    X = mesh.points[mesh.cells]
+    J = np.swapaxes(X[:, 1:] - X[:, :1], 1, 2)
+    det = np.linalg.det(J)
+    edges = np.concatenate([X[:, i] - X[:, j] for i in range(d + 1) for j in range(i)], axis=0)
+    h = np.linalg.norm(edges.reshape(-1, mesh.n_elements, d), axis=2).max(axis=0)
+    degenerate = np.abs(det) <= 1e-10 * h**d
+    if np.any(degenerate):
+        bad = np.flatnonzero(degenerate)
+        raise InputError(
+            "mesh", f"{bad.size} degenerate element(s) (zero volume), first: element {bad[0]} with nodes {mesh.cells[bad[0]].tolist()}"
+        )
+    sign = np.sign(det)
+    majority = 1.0 if np.sum(sign > 0) >= np.sum(sign < 0) else -1.0
+    if np.any(sign != majority):
+        bad = np.flatnonzero(sign != majority)
+        raise InputError(
+            "mesh", f"{bad.size} inverted element(s) (orientation opposite to the rest), first: element {bad[0]}"
+        )
+    Jinv = np.linalg.inv(J)  # rows: gradients of phi_1..phi_d
+    grads = np.concatenate([-Jinv.sum(axis=1, keepdims=True), Jinv], axis=1)
+    return np.abs(det) / factorial(d), grads
+
+
+def strain_operator(mesh: Mesh, grads: np.ndarray) -> sp.csr_matrix:
+    """Global ``B`` on all dofs, rows ``element * k + component`` (Mandel)."""
+    d, n = mesh.dim, mesh.n_elements
+    k = n_components(d)
+    rows, cols, vals = [], [], []
+    for c, terms in enumerate(_STRAIN_ROWS[d]):
+        for comp, der, w in terms:
+            rows.append(np.repeat(np.arange(n) * k + c, d + 1))
+            cols.append((mesh.cells * d + comp).ravel())
+            vals.append((w * grads[:, :, der]).ravel())
+    return sp.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(n * k, mesh.n_nodes * d),
+    )
+
+
+def _rigid_motions(points: np.ndarray) -> np.ndarray:
+    """Basis ``(n_nodes * d, r)`` of infinitesimal rigid motions at the nodes."""
+    n, d = points.shape
+    x = points - points.mean(axis=0)
+    modes = []
+    for a in range(d):
+        t = np.zeros((n, d))
+        t[:, a] = 1.0
+        modes.append(t)
+    for a, b in ([(0, 1)] if d == 2 else [(0, 1), (1, 2), (0, 2)]):
+        r = np.zeros((n, d))
+        r[:, a], r[:, b] = -x[:, b], x[:, a]
+        modes.append(r)
+    return np.stack([m.ravel() for m in modes], axis=1)
+
+
+_MOTION_NAMES = {2: ["translation x", "translation y", "rotation in xy"],
+                 3: ["translation x", "translation y", "translation z", "rotation in xy", "rotation in yz", "rotation in xz"]}
+
+
+def _check_no_rigid_motion(mesh: Mesh, fixed_mask: np.ndarray) -> None:
+    """Every connected piece of the mesh must have its rigid motions blocked."""
+    d = mesh.dim
+    e = mesh.cells
+    pairs = np.concatenate([e[:, [i, j]] for i in range(d + 1) for j in range(i)], axis=0)
+    adj = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(mesh.n_nodes,) * 2)
+    n_parts, labels = connected_components(adj, directed=False)
+    for part in range(n_parts):
+        nodes = np.flatnonzero(labels == part)
+        R = _rigid_motions(mesh.points[nodes])
+        mask = fixed_mask.reshape(-1, d)[nodes].ravel()
+        Rf = R[mask]
+        scale = np.linalg.norm(R, axis=0)
+        s = np.linalg.svd(Rf / scale, compute_uv=False) if Rf.size else np.zeros(0)
+        rank = int(np.sum(s > 1e-8 * max(1.0, s.max(initial=0.0))))
+        if rank < R.shape[1]:
+            # name a free motion: the one least touched by the fixed dofs
+            free_norm = np.linalg.norm(Rf / scale, axis=0) if Rf.size else np.zeros(R.shape[1])
+            name = _MOTION_NAMES[d][int(np.argmin(free_norm))]
+            raise InputError(
+                "boundary",
+                f"the fixed displacements leave a rigid motion free ({name}"
+                + (f", mesh part {part}" if n_parts > 1 else "")
+                + "); clamp or fix more of the boundary",
+            )
+
+
+def _flat_bottom_area(mesh: Mesh, tol: float) -> np.ndarray:
+    """Lumped area of the boundary lying in ``x_d = 0`` at each node."""
+    d = mesh.dim
+    facets = _boundary_facets(mesh.cells)
+    on_plane = np.all(np.abs(mesh.points[facets][:, :, -1]) <= tol, axis=1)
+    facets = facets[on_plane]
+    X = mesh.points[facets][:, :, :-1]  # in-plane coordinates
+    if d == 2:
+        meas = np.abs(X[:, 1, 0] - X[:, 0, 0])
+    else:
+        v1, v2 = X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]
+        meas = 0.5 * np.abs(v1[:, 0] * v2[:, 1] - v1[:, 1] * v2[:, 0])
+    area = np.zeros(mesh.n_nodes)
+    np.add.at(area, facets.ravel(), np.repeat(meas / d, d))
+    return area
+
+
+def discretize(problem: Problem) -> Discretization:
+    """Build the operators of (2.1) and refuse inputs that make it ill-posed."""
+    mesh = problem.mesh
+    d = mesh.dim
+    volumes, grads = _element_geometry(mesh)
+    B_all = strain_operator(mesh, grads)
+
+    bnd = problem.boundary
+    fixed_mask = np.zeros((mesh.n_nodes, d), dtype=bool)
+    fixed_mask[mesh.group_nodes(bnd.clamped)] = True
+    for comp, names in bnd.fix_component.items():
+        fixed_mask[mesh.group_nodes(names), comp] = True
+    fixed_mask = fixed_mask.ravel()
+
+    contact_nodes = mesh.group_nodes(bnd.contact)
+    if contact_nodes.size == 0:
+        raise InputError("boundary.contact", f"the contact zone {list(bnd.contact)} has no nodes")
+    extent = float(np.max(mesh.points.max(axis=0) - mesh.points.min(axis=0)))
+    tol = 1e-9 * extent
+    off_plane = np.abs(mesh.points[contact_nodes, -1]) > tol
+    if np.any(off_plane):
+        raise InputError(
+            "boundary.contact",
+            f"{int(off_plane.sum())} contact node(s) are not in the contact plane x_{d} = 0 "
+            "(the body must sit on x_d = 0 with the rigid body below)",
+        )
+    if np.any(mesh.points[:, -1] < -tol):
+        raise InputError("mesh", f"part of the body lies below the contact plane x_{d} = 0")
+    vertical_fixed = fixed_mask.reshape(-1, d)[contact_nodes, d - 1]
+    if np.any(vertical_fixed):
+        raise InputError(
+            "boundary.contact",
+            f"{int(vertical_fixed.sum())} contact node(s) have their vertical displacement fixed "
+            "(the contact zone must stay clear of clamped groups and of fix_component on the vertical axis)",
+        )
+    _check_no_rigid_motion(mesh, fixed_mask)
+
+    free = np.flatnonzero(~fixed_mask)
+    fixed = np.flatnonzero(fixed_mask)
+    B = B_all[:, free].tocsr()
+    position = -np.ones(mesh.n_nodes * d, dtype=np.int64)
+    position[free] = np.arange(free.size)
+    cols = position[contact_nodes * d + d - 1]
+    N = sp.csr_matrix((np.ones(contact_nodes.size), (np.arange(contact_nodes.size), cols)), shape=(contact_nodes.size, free.size))
+
+    psi = problem.obstacle.psi(mesh.points[contact_nodes, :-1], field="obstacle")
+    area = _flat_bottom_area(mesh, tol)[contact_nodes]
+    return Discretization(
+        problem=problem,
+        volumes=volumes,
+        B=B,
+        free=free,
+        fixed=fixed,
+        contact_nodes=contact_nodes,
+        N=N,
+        psi=psi,
+        contact_area=area,
+    )
+
+
+@dataclass(frozen=True)
+class Units:
+    """Reference magnitudes for solving in O(1) numbers.
+
+    ``stress``: the mean pressure ``F / |Gamma_0|``; ``length``: the body's
+    extent; ``displacement = length * stress / E``, so strains come in units of
+    ``stress / E``; ``force = stress * length**(d-1)``.
+    """
+
+    stress: float
+    length: float
+    displacement: float
+    force: float
+    E: float
+
+
+def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
+    """The same discrete problem in the units of :class:`Units` (E becomes 1).
+
+    Solvers may work on the result and map back with ``sigma * stress``,
+    ``u * displacement``, ``contact forces * force``; the certificate is always
+    evaluated on the original problem.
+    """
+    from dataclasses import replace
+
+    m, d = disc.material, disc.dim
+    L = disc.length_scale
+    area = disc.contact_area.sum()
+    S = disc.force / area if area > 0 else m.E * 1e-3
+    units = Units(stress=S, length=L, displacement=L * S / m.E, force=S * L ** (d - 1), E=m.E)
+    material = Material(1.0, m.nu, m.yield_stress / S, m.hardening / m.E)
+    problem = replace(disc.problem, material=material, force=disc.force / units.force)
+    return (
+        replace(
+            disc,
+            problem=problem,
+            volumes=disc.volumes / L**d,
+            B=(disc.B * L).tocsr(),
+            psi=disc.psi / units.displacement,
+            contact_area=disc.contact_area / L ** (d - 1),
+        ),
+        units,
+    )

@@ -1,0 +1,119 @@
+"""Hencky elasto-plastic material in Mandel (orthonormal) vector notation.
+
+Stresses and strains are vectors whose dot product is the tensor contraction
+``sigma : eps`` (MATH.md section 2):
+
+* 3D: ``(11, 22, 33, sqrt2*23, sqrt2*13, sqrt2*12)``, six components;
+* plane strain: ``(11, 22, 33, sqrt2*12)``, four components, where ``eps33 = 0``
+  but ``sigma33`` is a free stress component that enters von Mises.
+
+Everything here works on arrays shaped ``(n_elements, n_components)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+SQRT_3_2 = np.sqrt(1.5)
+
+
+def n_components(dim: int) -> int:
+    """Number of Mandel components of a symmetric tensor in ``dim`` (2 = plane strain)."""
+    return {2: 4, 3: 6}[dim]
+
+
+def identity_vector(dim: int) -> np.ndarray:
+    """The identity tensor ``I`` in Mandel notation (``I : tau = tr tau``)."""
+    m = np.zeros(n_components(dim))
+    m[:3] = 1.0
+    return m
+
+
+def deviator_matrix(dim: int) -> np.ndarray:
+    """Matrix of ``dev tau = tau - (tr tau / 3) I``; symmetric and idempotent."""
+    m = identity_vector(dim)
+    return np.eye(m.size) - np.outer(m, m) / 3.0
+
+
+def deviator(tau: np.ndarray) -> np.ndarray:
+    """Deviatoric part of each row of ``tau`` (shape ``(n, k)``)."""
+    out = tau.copy()
+    mean = tau[..., :3].sum(axis=-1, keepdims=True) / 3.0
+    out[..., :3] -= mean
+    return out
+
+
+def von_mises(sigma: np.ndarray) -> np.ndarray:
+    """Von Mises equivalent stress ``sqrt(3/2) |dev sigma|`` of each row."""
+    return SQRT_3_2 * np.linalg.norm(deviator(sigma), axis=-1)
+
+
+@dataclass(frozen=True)
+class Material:
+    """Isotropic elasticity with von Mises yield and linear isotropic hardening.
+
+    ``hardening`` is the modulus H of MATH.md section 2 (uniaxial
+    ``sigma = sigma_y + H eps_p``); ``hardening == 0`` is perfect plasticity.
+    """
+
+    E: float
+    nu: float
+    yield_stress: float
+    hardening: float
+
+    @property
+    def mu(self) -> float:
+        return self.E / (2.0 * (1.0 + self.nu))
+
+    @property
+    def lam(self) -> float:
+        return self.E * self.nu / ((1.0 + self.nu) * (1.0 - 2.0 * self.nu))
+
+    @property
+    def bulk(self) -> float:
+        return self.lam + 2.0 * self.mu / 3.0
+
+    @property
+    def perfectly_plastic(self) -> bool:
+        return self.hardening == 0.0
+
+    def stiffness(self, dim: int) -> np.ndarray:
+        """``C = 2 mu I + lam m m^T`` acting on Mandel vectors."""
+        m = identity_vector(dim)
+        return 2.0 * self.mu * np.eye(m.size) + self.lam * np.outer(m, m)
+
+    def compliance(self, dim: int) -> np.ndarray:
+        """``A = C^{-1} = (I - lam/(2 mu + 3 lam) m m^T) / (2 mu)`` in closed form."""
+        m = identity_vector(dim)
+        c = self.lam / (2.0 * self.mu + 3.0 * self.lam)
+        return (np.eye(m.size) - c * np.outer(m, m)) / (2.0 * self.mu)
+
+    def max_stiffness_eigenvalue(self) -> float:
+        """``lambda_max(C) = 3 K = E / (1 - 2 nu)`` for nu >= 0, else ``2 mu``."""
+        return max(3.0 * self.bulk, 2.0 * self.mu)
+
+
+def return_mapping(material: Material, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closed-form projection of ``(C eps, 0)`` onto the admissible set D.
+
+    This is the map R of MATH.md section 6, applied to every row of ``eps``
+    (shape ``(n, k)``), projecting in the energy metric ``[.,.]``::
+
+        sigma_tr = C eps,  s = dev sigma_tr,  f = sqrt(3/2)|s| - sigma_y
+        f <= 0:  sigma = sigma_tr,  xi = 0
+        f  > 0:  dkappa = f / (3 mu + H),
+                 sigma = sigma_tr - 2 mu sqrt(3/2) dkappa s/|s|,  xi = H dkappa
+
+    Returns ``(sigma, xi, dkappa)``; ``dkappa`` is the equivalent plastic strain.
+    """
+    dim = 2 if eps.shape[-1] == 4 else 3
+    sigma = eps @ material.stiffness(dim)
+    s = deviator(sigma)
+    norm_s = np.linalg.norm(s, axis=-1)
+    f = SQRT_3_2 * norm_s - material.yield_stress
+    dkappa = np.where(f > 0.0, f, 0.0) / (3.0 * material.mu + material.hardening)
+    safe = np.where(norm_s > 0.0, norm_s, 1.0)
+    sigma = sigma - (2.0 * material.mu * SQRT_3_2 * dkappa / safe)[:, None] * s
+    return sigma, material.hardening * dkappa, dkappa

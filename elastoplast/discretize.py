@@ -293,8 +293,9 @@ def discretize(problem: Problem) -> Discretization:
 class Units:
     """Reference magnitudes for solving in O(1) numbers.
 
-    ``stress``: the mean pressure ``F / |Gamma_0|``; ``length``: the body's
-    extent; ``displacement = length * stress / E``, so strains come in units of
+    ``stress``: the mean pressure ``F / |Gamma_0|``; ``length``: the mean
+    element size ``mean(|T|)**(1/d)``, so that element volumes are O(1) on
+    average; ``displacement = length * stress / E``, so strains come in units of
     ``stress / E``; ``force = stress * length**(d-1)``.
     """
 
@@ -315,7 +316,7 @@ def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
     from dataclasses import replace
 
     m, d = disc.material, disc.dim
-    L = disc.length_scale
+    L = float(disc.volumes.mean() ** (1.0 / d))
     area = disc.contact_area.sum()
     S = disc.force / area if area > 0 else m.E * 1e-3
     units = Units(stress=S, length=L, displacement=L * S / m.E, force=S * L ** (d - 1), E=m.E)

@@ -117,3 +117,33 @@ def return_mapping(material: Material, eps: np.ndarray) -> tuple[np.ndarray, np.
     safe = np.where(norm_s > 0.0, norm_s, 1.0)
     sigma = sigma - (2.0 * material.mu * SQRT_3_2 * dkappa / safe)[:, None] * s
     return sigma, material.hardening * dkappa, dkappa
+
+
+def consistent_tangent(material: Material, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return mapping and its derivative ``d sigma / d eps`` per row of ``eps``.
+
+    Differentiating the closed form of :func:`return_mapping` with
+    ``n = s/|s|``, ``q = sqrt(3/2)|s|`` (trial values) and ``Dev`` the
+    deviatoric projector gives, in plastic elements,
+
+        C_alg = C - 6 mu^2 / (3 mu + H) n n^T - 6 mu^2 dkappa / q (Dev - n n^T),
+
+    and ``C`` in elastic ones. Returns ``(sigma, xi, C_alg)`` with ``C_alg``
+    shaped ``(n, k, k)``.
+    """
+    dim = 2 if eps.shape[-1] == 4 else 3
+    sigma, xi, dkappa = return_mapping(material, eps)
+    C = material.stiffness(dim)
+    tangent = np.broadcast_to(C, (eps.shape[0],) + C.shape).copy()
+    plastic = dkappa > 0.0
+    if np.any(plastic):
+        mu, H = material.mu, material.hardening
+        s = deviator(eps[plastic] @ C)
+        norm_s = np.linalg.norm(s, axis=-1)
+        n = s / norm_s[:, None]
+        nn = n[:, :, None] * n[:, None, :]
+        q = SQRT_3_2 * norm_s
+        dev = deviator_matrix(dim)
+        tangent[plastic] -= (6.0 * mu**2 / (3.0 * mu + H)) * nn
+        tangent[plastic] -= (6.0 * mu**2 * dkappa[plastic] / q)[:, None, None] * (dev - nn)
+    return sigma, xi, tangent

@@ -54,11 +54,9 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 
 from .errors import InputError
-from .problem import SECTIONS, problem_from_dict, read_toml
+from .problem import SECTIONS, SOLVER_KEYS, problem_from_dict, read_toml, solver_settings
 from .store import ERROR, ResolvedInput, Store, atomic_write, case_record, content_hash, rebuild_problem, resolve
 
-SOLVER_KEYS = ("method", "tol", "max_iter", "rho")
-DEFAULT_METHOD = "conic"
 
 
 # ----------------------------------------------------------------------------
@@ -85,33 +83,6 @@ class Campaign:
     cases: tuple[Case, ...]
     #: sweep points that resolved to an earlier case (e.g. "sphere" and "cylinder" in 2D)
     n_duplicates: int = 0
-
-
-def solver_settings(section: Mapping[str, Any], prefix: str = "solver") -> tuple[str, dict[str, Any]]:
-    """``(method, options)`` from a ``[solver]`` table; the method must be registered now."""
-    from .solvers import METHODS
-
-    if not isinstance(section, Mapping):
-        raise InputError(prefix, f"must be a table, got {section!r}")
-    unknown = sorted(set(section) - set(SOLVER_KEYS))
-    if unknown:
-        raise InputError(f"{prefix}.{unknown[0]}", f"unknown key (allowed: {list(SOLVER_KEYS)})")
-    method = section.get("method", DEFAULT_METHOD)
-    if method not in METHODS:
-        raise InputError(f"{prefix}.method", f"unknown method {method!r} (choose from {sorted(METHODS)})")
-    options: dict[str, Any] = {}
-    for key in ("tol", "rho"):
-        if key in section:
-            val = section[key]
-            if isinstance(val, bool) or not isinstance(val, (int, float)) or not (math.isfinite(val) and val > 0):
-                raise InputError(f"{prefix}.{key}", f"must be a finite number > 0, got {val!r}")
-            options[key] = float(val)
-    if "max_iter" in section:
-        val = section["max_iter"]
-        if isinstance(val, bool) or not isinstance(val, int) or val < 1:
-            raise InputError(f"{prefix}.max_iter", f"must be an integer >= 1, got {val!r}")
-        options["max_iter"] = val
-    return method, options
 
 
 def _axes(sweep: Any) -> dict[str, list]:

@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("solve", help="solve one problem and write solution.vtu and summary.json")
     p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
-    p.add_argument("--method", default="conic", choices=sorted(METHODS), help="solver (default: conic)")
+    p.add_argument("--method", choices=sorted(METHODS), help="solver (default: the file's [solver] method, else conic)")
     p.add_argument("--out", default="results", help="output directory (default: results)")
     p.add_argument("--tol", type=float, help="solver tolerance")
     p.add_argument("--max-iter", type=int, help="iteration limit")
@@ -70,17 +70,18 @@ def _add_dask_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _solve(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from .discretize import discretize
     from .output import write_results
-    from .problem import load_problem
+    from .problem import problem_from_dict, read_toml, solver_settings
     from .solvers import solve
 
     path = Path(args.problem) if args.problem else default_problem_path()
-    problem = load_problem(path)
+    data = read_toml(path)
+    method, options = solver_settings(data.get("solver", {}))  # the file's [solver] table, checked
+    problem = problem_from_dict(data, base_dir=path.parent)
     disc = discretize(problem)
-    options = {k: v for k, v in (("tol", args.tol), ("max_iter", args.max_iter), ("rho", args.rho)) if v is not None}
+    args.method = args.method or method
+    options.update({k: v for k, v in (("tol", args.tol), ("max_iter", args.max_iter), ("rho", args.rho)) if v is not None})
     if not args.quiet:
         options["progress"] = True
         print(f"{path.name}: {disc.dim}D, {disc.n_elements} elements, {disc.mesh.n_nodes} nodes, "
@@ -94,7 +95,6 @@ def _solve(args: argparse.Namespace) -> int:
     if not sol.converged:
         print(f"not converged: {sol.message}", file=sys.stderr)
         return EXIT_NOT_CONVERGED
-    del np
     return EXIT_OK
 
 

@@ -117,6 +117,8 @@ BAD = [
     ("mesh.file", ("mesh.file", "does_not_exist.msh")),
     ("mesh.divisions", ("mesh.divisions", [0, 3])),
     ("problem.extra", ("extra", {"a": 1})),
+    ("solver.tolerance", ("solver.tolerance", 1e-8)),
+    ("solver.method", ("solver.method", "magic")),
 ]
 
 

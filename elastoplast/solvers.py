@@ -11,6 +11,7 @@ from typing import Any, Callable
 from .conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
 from .discretize import Discretization
 from .errors import InputError
+from .newton import newton_method
 from .solution import Solution
 
 
@@ -28,6 +29,7 @@ METHODS: dict[str, Callable[..., Solution]] = {
     "conic": _conic(solve_conic),
     "conic-cvxpy": _conic(solve_conic_cvxpy),
     "conic-displacement": _conic(solve_conic_displacement),
+    "newton": newton_method,
 }
 
 

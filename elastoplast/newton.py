@@ -1,0 +1,504 @@
+"""Semismooth Newton / primal-dual active set on the displacement form (D).
+
+For fixed strains the minimum of (D) over the plastic strains is reached by the
+return mapping, so (D) is the convex, once differentiable problem
+
+    minimise  f(u, U) = sum_T |T| W(B_T u) - F U   subject to  N u + psi - U >= 0,
+
+with ``grad W = R`` (the stresses of the return mapping) and a semismooth
+gradient. In the variables ``y = (u with the vertical contact dofs replaced by
+w_i = u_{i,d} - U, U)`` the contact inequalities become bounds
+``w_i >= -psi_i`` (the gap is ``g_i = w_i + psi_i``), and the method is
+Bertsekas' projected Newton method for bound constraints:
+
+* the active set: contact variables at (or within ``eps_k`` of) their bound
+  whose gradient ``lam_i = r_{i,d}`` pushes into the obstacle;
+* the Newton step on the face they define, with the consistent tangent of the
+  return mapping (:func:`~elastoplast.material.consistent_tangent`:
+  ``C_ep = C - 6 mu^2/(3 mu + H) n n^T - 6 mu^2 dkappa/q (Dev - n n^T)`` on
+  plastic elements, from differentiating the radial return); the active variables go to their
+  bound, the Hessian row of ``U`` couples the rigid body to every contact node;
+* an Armijo line search on f along the projection arc ``P[y + alpha d]``, which
+  keeps every iterate feasible and makes the method converge from ``u = 0``.
+
+The Hessian keeps one sparsity pattern for every active set (active rows and
+columns are replaced by their diagonal), so the sparse factorisation's
+symbolic analysis is done once; with PARDISO a stale factorisation also serves
+as a preconditioner for conjugate gradients while that is cheaper than
+refactorising (:class:`NewtonOptions`). Every iterate is judged by the KKT
+certificate of MATH.md section 6.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import os
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from .certificate import certify
+from .discretize import Discretization, nondimensionalize
+from .material import consistent_tangent
+from .solution import Solution, Status, make_solution, value_displacement_form
+
+
+@dataclass(frozen=True)
+class NewtonOptions:
+    """Settings of :func:`solve_newton`.
+
+    ``tol``: stop when every KKT residual of the certificate (each already a
+    residual over its scale, ``eps_abs = 0``) is at most ``tol``.
+    ``linear_solver``: ``"pardiso"`` (MKL, via pypardiso), ``"splu"`` (SciPy) or
+    ``"auto"`` (PARDISO when installed). Measured on the 3D sphere with 111k
+    tetrahedra (52k dofs): PARDISO 0.5 s analysis + 2.1 s factorisation, SciPy's
+    SuperLU 41 s (COLAMD), cholespy 53 s (see benchmarks/methods/README.md).
+    ``reuse_factorization``: first try conjugate gradients preconditioned by the
+    last factorisation (within 0.3 of a factorisation's measured cost). Off by
+    default: on the 3D sphere (41k tetrahedra) it saved one factorisation of
+    eight and no time, and with a looser CG tolerance (1e-2) the inexact steps
+    made the contact set oscillate (28 Newton steps instead of 8).
+    ``load_steps``: solve for ``F/n, 2F/n, ..., F`` in turn, each from the last.
+    ``threads``: MKL threads for PARDISO (None: MKL's default). On a machine
+    shared with other jobs one thread avoids OpenMP's busy waiting.
+    """
+
+    tol: float = 1e-10
+    max_iter: int = 100
+    linear_solver: str = "auto"
+    reuse_factorization: bool = False
+    load_steps: int = 1
+    threads: int | None = None
+    armijo: float = 1e-4
+    progress: bool = False
+
+
+# ----------------------------------------------------------------------------
+# the Hessian on a fixed sparsity pattern
+# ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class HessianLayout:
+    """Element-by-element assembly of the Hessian of f in the variables y.
+
+    ``B_local (n_el, k, m)`` are the element strain matrices on the ``m``
+    local dofs ``local (n_el, m)`` (free-dof numbers, -1 where fixed). The
+    upper triangle of the ``(n_free + 1)`` Hessian is stored in CSR with
+    ``indptr``/``indices``; ``scatter`` sends each element entry (those with
+    ``keep``) to its slot, ``u_slots``/``u_rows`` are the slots of the column
+    of U, ``diag`` the diagonal slots, ``row``/``col`` each slot's indices.
+    """
+
+    B_local: np.ndarray
+    local: np.ndarray
+    upper: np.ndarray
+    keep: np.ndarray
+    scatter: np.ndarray
+    indptr: np.ndarray
+    indices: np.ndarray
+    row: np.ndarray
+    col: np.ndarray
+    diag: np.ndarray
+    u_slots: np.ndarray
+    u_rows: np.ndarray
+    contact_dofs: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return self.indptr.size - 1
+
+
+def contact_dofs(disc: Discretization) -> np.ndarray:
+    """Free-dof number of the vertical dof of each contact node (rows of N)."""
+    N = disc.N.tocsr()
+    return N.indices[N.indptr[:-1]]
+
+
+def hessian_layout(disc: Discretization) -> HessianLayout:
+    """Local strain matrices and the fixed pattern of the Hessian (done once)."""
+    n_el, k, d = disc.n_elements, disc.k, disc.dim
+    m = (d + 1) * d
+    position = -np.ones(disc.mesh.n_nodes * d, dtype=np.int64)
+    position[disc.free] = np.arange(disc.n_free)
+    local = position[(disc.mesh.cells[:, :, None] * d + np.arange(d)).reshape(n_el, m)]
+    B = disc.B.tocoo()
+    el, comp = B.row // k, B.row % k
+    slot = np.argmax(local[el] == B.col[:, None], axis=1)
+    B_local = np.zeros((n_el, k, m))
+    np.add.at(B_local, (el, comp, slot), B.data)
+
+    iu, ju = np.triu_indices(m)
+    gi, gj = local[:, iu], local[:, ju]
+    keep = ((gi >= 0) & (gj >= 0)).ravel()
+    lo, hi = np.minimum(gi, gj).ravel()[keep], np.maximum(gi, gj).ravel()[keep]
+    n = disc.n_free + 1
+    cdofs = contact_dofs(disc)
+    # the column of U: every dof coupled to a contact dof, and U itself
+    is_c = np.zeros(n - 1, dtype=bool)
+    is_c[cdofs] = True
+    touch = is_c[lo] | is_c[hi]
+    u_rows = np.unique(np.concatenate([lo[touch], hi[touch]]))
+    keys = np.concatenate([lo * n + hi, u_rows * n + (n - 1), [n * n - 1]])
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    row, col = uniq // n, uniq % n
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(row, minlength=n))])
+    n_el_keys = lo.size
+    diag = np.searchsorted(uniq, np.arange(n) * n + np.arange(n))
+    return HessianLayout(
+        B_local=B_local, local=local, upper=np.stack([iu, ju]), keep=keep, scatter=inverse[:n_el_keys],
+        indptr=indptr.astype(np.int64), indices=col.astype(np.int64), row=row, col=col, diag=diag,
+        u_slots=inverse[n_el_keys:], u_rows=np.append(u_rows, n - 1), contact_dofs=cdofs,
+    )
+
+
+def assemble_hessian(lay: HessianLayout, volumes: np.ndarray, tangent: np.ndarray) -> np.ndarray:
+    """Upper-triangle CSR values of ``T^T diag(K_t, 0) T`` in the variables y.
+
+    ``K_t = sum_T |T| B_T^T C_ep,T B_T``; with ``u = y_u + U e_c`` (``e_c`` the
+    indicator of the vertical contact dofs) the Hessian in y is
+    ``[[K_t, K_t e_c], [e_c^T K_t, e_c^T K_t e_c]]``.
+    """
+    DB = np.matmul(tangent * volumes[:, None, None], lay.B_local)
+    Ke = np.matmul(np.swapaxes(lay.B_local, 1, 2), DB)
+    vals = Ke[:, lay.upper[0], lay.upper[1]].ravel()[lay.keep]
+    data = np.bincount(lay.scatter, weights=vals, minlength=lay.indices.size)
+    n = lay.size
+    K = sp.csr_matrix((data, lay.indices, lay.indptr), shape=(n, n))
+    ec = np.zeros(n)
+    ec[lay.contact_dofs] = 1.0
+    Kec = K @ ec + K.T @ ec - data[lay.diag] * ec  # the full symmetric K times e_c
+    data[lay.u_slots[:-1]] = Kec[lay.u_rows[:-1]]
+    data[lay.diag[-1]] = ec @ Kec
+    return data
+
+
+def upper_matvec(lay: HessianLayout, data: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``H x`` for the symmetric matrix stored by its upper triangle."""
+    n = lay.size
+    H = sp.csr_matrix((data, lay.indices, lay.indptr), shape=(n, n))
+    return H @ x + H.T @ x - data[lay.diag] * x
+
+
+def fix_variables(lay: HessianLayout, data: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """The face system: rows and columns of ``fixed`` variables replaced by their diagonal."""
+    out = data.copy()
+    out[fixed[lay.row] | fixed[lay.col]] = 0.0
+    out[lay.diag[fixed]] = data[lay.diag[fixed]]
+    return out
+
+
+# ----------------------------------------------------------------------------
+# sparse SPD solves
+# ----------------------------------------------------------------------------
+
+
+@functools.cache
+def _mkl_runtime() -> str:
+    """Path of MKL's runtime as found by pypardiso at import (its search of
+    ``sys.prefix`` takes seconds; new solver objects reuse the result)."""
+    import pypardiso
+
+    return pypardiso.ps.libmkl._name
+
+
+class SPDSolver:
+    """Factorisation of symmetric positive definite matrices of one pattern.
+
+    PARDISO (``mtype = 2``, upper triangle) does its symbolic analysis once
+    and only refactorises numerically afterwards; SuperLU is the fallback.
+    ``solve_flops / factor_flops`` (from PARDISO's statistics: factor entries
+    and factorisation Mflop) is the cost of one solve relative to a
+    factorisation, which decides how many preconditioned CG steps are worth
+    trying before refactorising.
+    """
+
+    def __init__(self, lay: HessianLayout, backend: str = "auto", threads: int | None = None):
+        if backend == "auto":
+            try:
+                import pypardiso  # noqa: F401
+
+                backend = "pardiso"
+            except ImportError:
+                backend = "splu"
+        if backend not in ("pardiso", "splu"):
+            raise ValueError(f"unknown linear solver {backend!r} (pardiso, splu)")
+        self.backend = backend
+        self.lay = lay
+        self.analysed = False
+        self.matrix: sp.csr_matrix | None = None
+        self.lu = None
+        self.solve_cost = np.inf
+        if backend == "pardiso":
+            import pypardiso
+
+            os.environ.setdefault("PYPARDISO_MKL_RT", _mkl_runtime())
+            self.pardiso = pypardiso.PyPardisoSolver(mtype=2)
+            if threads is not None:
+                self.pardiso.libmkl.MKL_Set_Num_Threads(ctypes.c_int(int(threads)))
+
+    def factor(self, data: np.ndarray) -> None:
+        n = self.lay.size
+        A = sp.csr_matrix((data, self.lay.indices, self.lay.indptr), shape=(n, n))
+        if self.backend == "pardiso":
+            self.pardiso.set_iparm(12, 0)
+            self.pardiso.set_phase(22 if self.analysed else 12)
+            self.pardiso._call_pardiso(A, np.zeros(n))
+            self.analysed = True
+            self.matrix = A
+            factor_entries, mflop = self.pardiso.get_iparm(18), self.pardiso.get_iparm(19)
+            if mflop > 0:
+                self.solve_cost = 4.0 * factor_entries / (1e6 * mflop)
+        else:
+            full = (A + A.T - sp.diags(data[self.lay.diag])).tocsc()
+            self.lu = sla.splu(full, permc_spec="MMD_AT_PLUS_A")
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        if self.backend == "pardiso":
+            self.pardiso.set_phase(33)
+            return self.pardiso._call_pardiso(self.matrix, np.asfortranarray(b))
+        return self.lu.solve(b)
+
+    def release(self) -> None:
+        """Free PARDISO's internal memory."""
+        if self.backend == "pardiso" and self.analysed:
+            self.pardiso.free_memory(everything=True)
+        self.lu = None
+
+
+def preconditioned_cg(matvec, precond, b: np.ndarray, x0: np.ndarray, rtol: float, max_iter: int):
+    """Conjugate gradients on ``A x = b`` from ``x0``; returns ``(x, iterations, converged)``."""
+    x = x0.copy()
+    r = b - matvec(x)
+    stop = rtol * np.linalg.norm(b)
+    if np.linalg.norm(r) <= stop:
+        return x, 0, True
+    z = precond(r)
+    p = z.copy()
+    rz = r @ z
+    for it in range(1, max_iter + 1):
+        Ap = matvec(p)
+        alpha = rz / (p @ Ap)
+        x += alpha * p
+        r -= alpha * Ap
+        if np.linalg.norm(r) <= stop:
+            return x, it, True
+        z = precond(r)
+        rz_new = r @ z
+        p = z + (rz_new / rz) * p
+        rz = rz_new
+    return x, max_iter, False
+
+
+# ----------------------------------------------------------------------------
+# the method
+# ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class State:
+    """An iterate in the variables y and what the return mapping gives there."""
+
+    y: np.ndarray
+    u: np.ndarray
+    U: float
+    sigma: np.ndarray
+    xi: np.ndarray
+    plastic: np.ndarray
+    tangent: np.ndarray
+    grad: np.ndarray
+    energy: float
+
+
+def to_displacements(y: np.ndarray, cdofs: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(u, U)`` from y: ``u_c = w + U`` at the vertical contact dofs."""
+    u = y[:-1].copy()
+    u[cdofs] += y[-1]
+    return u, float(y[-1])
+
+
+def to_variables(u: np.ndarray, U: float, cdofs: np.ndarray) -> np.ndarray:
+    y = np.append(u, U)
+    y[cdofs] -= U
+    return y
+
+
+def evaluate(disc: Discretization, cdofs: np.ndarray, y: np.ndarray) -> State:
+    """Stresses, tangent, gradient ``T^T (r, -F)`` and energy f at y.
+
+    The gradient is ``r = sum_T |T| B_T^T sigma_T`` on the u part (the contact
+    rows give ``lam_i = r_{i,d}``) and ``sum_i lam_i - F`` for U.
+    """
+    u, U = to_displacements(y, cdofs)
+    sigma, xi, tangent = consistent_tangent(disc.material, disc.strain(u))
+    plastic = np.any(tangent != disc.material.stiffness(disc.dim), axis=(1, 2))
+    r = disc.internal_force(sigma)
+    grad = np.append(r, r[cdofs].sum() - disc.force)
+    return State(y, u, U, sigma, xi, plastic, tangent, grad, value_displacement_form(disc, u, U))
+
+
+def project(y: np.ndarray, cdofs: np.ndarray, lower: np.ndarray) -> np.ndarray:
+    """Projection onto the bounds ``w_i >= -psi_i``: the feasible set K_h in y."""
+    out = y.copy()
+    out[cdofs] = np.maximum(out[cdofs], lower)
+    return out
+
+
+def active_set(st: State, cdofs: np.ndarray, lower: np.ndarray, diag: np.ndarray) -> np.ndarray:
+    """Bertsekas' eps-active set: contact variables within ``eps_k`` of their
+    bound whose gradient (the contact force) is nonnegative, with
+    ``eps_k = min(1e-3, |y - P[y - D grad]|_inf)``, ``D`` the inverse Hessian diagonal.
+
+    If it is empty the contact variable nearest its bound is taken, so that the
+    face Hessian is nonsingular (U alone is not bounded below)."""
+    y, g = st.y, st.grad
+    step = y - project(y - g / diag, cdofs, lower)
+    eps_k = min(1e-3, float(np.abs(step).max()))
+    dist = y[cdofs] - lower
+    act = (dist <= eps_k) & (g[cdofs] >= 0.0)
+    if not np.any(act):
+        act[np.argmin(dist)] = True
+    return act
+
+
+def newton_direction(lay, linear, st, cdofs, lower, volumes, kkt_worst, options, costs, timings):
+    """Newton step on the face of the eps-active set: the active contact
+    variables go to their bound, the others solve ``H_FF d_F = -grad_F - H_FA d_A``.
+
+    With ``reuse_factorization`` the system is first tried by conjugate
+    gradients preconditioned by the last factorisation, to relative residual
+    ``min(1e-2, kkt)`` (a forcing term that keeps the convergence superlinear)
+    and within the iterations that cost less than a refactorisation.
+    """
+    t0 = time.perf_counter()
+    data = assemble_hessian(lay, volumes, st.tangent)
+    timings["assembly"] += time.perf_counter() - t0
+    act = active_set(st, cdofs, lower, data[lay.diag])
+    fixed = np.zeros(lay.size, dtype=bool)
+    fixed[cdofs[act]] = True
+    d_fixed = np.zeros(lay.size)
+    d_fixed[cdofs[act]] = lower[act] - st.y[cdofs[act]]
+    face = fix_variables(lay, data, fixed)
+    rhs = -st.grad - upper_matvec(lay, data, d_fixed)
+    rhs[fixed] = data[lay.diag][fixed] * d_fixed[fixed]
+    info = {"factorized": False, "cg_iterations": 0}
+    if options.reuse_factorization and costs["factored"]:
+        t0 = time.perf_counter()
+        budget = max(1, int(min(60, 0.3 * costs["factor"] / costs["solve"])))
+        x, its, ok = preconditioned_cg(lambda v: upper_matvec(lay, face, v), linear.solve, rhs,
+                                       np.zeros_like(rhs), min(1e-4, max(1e-12, kkt_worst)), budget)
+        timings["solve"] += time.perf_counter() - t0
+        info["cg_iterations"] = its
+        if ok:
+            return x, info
+    t0 = time.perf_counter()
+    linear.factor(face)
+    t1 = time.perf_counter()
+    x = linear.solve(rhs)
+    t2 = time.perf_counter()
+    costs.update(factored=True, factor=t1 - t0, solve=t2 - t1)
+    timings["factorization"] += t1 - t0
+    timings["solve"] += t2 - t1
+    info["factorized"] = True
+    return x, info
+
+
+def line_search(disc, cdofs, lower, st, direction, armijo):
+    """Armijo backtracking along the projection arc ``P[y + alpha d]``:
+    accept when ``f(y_alpha) <= f(y) + armijo grad . (y_alpha - y)`` (up to
+    rounding of f). Returns ``(state or None, alpha)``."""
+    alpha = 1.0
+    for _ in range(40):
+        trial = project(st.y + alpha * direction, cdofs, lower)
+        cand = evaluate(disc, cdofs, trial)
+        if cand.energy <= st.energy + armijo * (st.grad @ (trial - st.y)) + 1e-14 * abs(st.energy):
+            return cand, alpha
+        alpha *= 0.5
+    return None, alpha
+
+
+def solve_newton(disc: Discretization, options: NewtonOptions = NewtonOptions(), warm_start: Solution | None = None) -> Solution:
+    """Projected semismooth Newton on (D); see the module docstring.
+
+    Works on the nondimensionalised problem; the certificate of the returned
+    solution is evaluated on ``disc``.
+    """
+    t_start = time.perf_counter()
+    timings = {"setup": 0.0, "assembly": 0.0, "factorization": 0.0, "solve": 0.0, "line_search": 0.0, "certificate": 0.0}
+    nd, units = nondimensionalize(disc)
+    lay = hessian_layout(nd)
+    linear = SPDSolver(lay, options.linear_solver, options.threads)
+    cdofs = lay.contact_dofs
+    lower = -nd.psi
+    timings["setup"] = time.perf_counter() - t_start
+
+    if warm_start is not None:
+        y = to_variables(disc.free_displacement(warm_start.u) / units.displacement, warm_start.U / units.displacement, cdofs)
+        y = project(y, cdofs, lower)
+    else:
+        y = np.zeros(nd.n_free + 1)
+    history: list[dict] = []
+    steps = max(1, int(options.load_steps))
+    iteration = 0
+    costs = {"factored": False}
+    status, message = Status.MAX_ITERATIONS, f"Newton: {options.max_iter} iterations without reaching tol {options.tol:g}"
+    for step in range(1, steps + 1):
+        target = nd.with_force(nd.force * step / steps)
+        tol = options.tol if step == steps else max(options.tol, 1e-4)
+        st = evaluate(target, cdofs, y)
+        while True:
+            t0 = time.perf_counter()
+            kkt = certify(target, st.sigma, st.xi, target.full_displacement(st.u), st.U)
+            timings["certificate"] += time.perf_counter() - t0
+            record = {"iteration": iteration, "load_step": step, "kkt": kkt.as_dict(), "kkt_worst": kkt.worst,
+                      "U": st.U * units.displacement, "energy": st.energy,
+                      "n_active": int(np.sum(target.N @ st.u + target.psi - st.U <= 0.0)),
+                      "n_plastic": int(st.plastic.sum()), "elapsed": time.perf_counter() - t_start}
+            if history and history[-1]["iteration"] == iteration:
+                history[-1].update(record)
+            else:
+                history.append(record)
+            if options.progress:
+                print(f"newton {iteration:3d}  kkt {kkt.worst:.2e}  U {record['U']:.6g}  active {record['n_active']}"
+                      f"  plastic {record['n_plastic']}", file=sys.stderr)
+            if kkt.worst <= tol or iteration >= options.max_iter:
+                break
+            iteration += 1
+            direction, info = newton_direction(lay, linear, st, cdofs, lower, target.volumes, kkt.worst,
+                                               options, costs, timings)
+            t0 = time.perf_counter()
+            accepted, alpha = line_search(target, cdofs, lower, st, direction, options.armijo)
+            timings["line_search"] += time.perf_counter() - t0
+            history.append({"iteration": iteration, **info, "step": alpha})
+            if accepted is None:
+                status, message = Status.FAILED, "Newton: line search failed (no decrease of the energy along the direction)"
+                break
+            st = accepted
+        if status is Status.FAILED or kkt.worst > tol:
+            break
+        y = st.y
+    if kkt.worst <= options.tol and status is not Status.FAILED:
+        status, message = Status.CONVERGED, f"Newton: KKT residuals <= {options.tol:g} after {iteration} iterations"
+    linear.release()
+    timings["total"] = time.perf_counter() - t_start
+    return make_solution(
+        disc, method="newton", status=status, sigma=st.sigma * units.stress, xi=st.xi * units.stress,
+        u_free=st.u * units.displacement, U=st.U * units.displacement, iterations=iteration, timings=timings,
+        message=message, history=history,
+    )
+
+
+def newton_method(disc: Discretization, tol: float | None = None, max_iter: int | None = None,
+                  progress: bool = False, **options: Any) -> Solution:
+    """The ``"newton"`` entry of the method registry: keyword options to
+    :class:`NewtonOptions`; keywords it does not know (``rho``) are ignored."""
+    known = set(NewtonOptions.__dataclass_fields__)
+    kw = {k: v for k, v in options.items() if k in known}
+    kw.update({k: v for k, v in (("tol", tol), ("max_iter", max_iter)) if v is not None})
+    return solve_newton(disc, NewtonOptions(progress=progress, **kw))

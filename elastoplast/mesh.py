@@ -107,6 +107,18 @@ def _structured_simplices(shape: tuple[int, ...], flip: list[np.ndarray]) -> np.
     return np.concatenate(cells, axis=0)
 
 
+def _crossed_triangles(points: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Four triangles per grid square, meeting at a new node in its centre."""
+    nx, ny = shape
+    i, j = (a.ravel() for a in np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij"))
+    v00 = i + (nx + 1) * j
+    corners = np.stack([v00, v00 + 1, v00 + nx + 2, v00 + nx + 1], axis=1)  # counter-clockwise
+    centre = points.shape[0] + np.arange(i.size)
+    points = np.concatenate([points, points[corners].mean(axis=1)])
+    cells = np.concatenate([np.stack([centre, corners[:, a], corners[:, (a + 1) % 4]], axis=1) for a in range(4)])
+    return points, cells
+
+
 def _boundary_facets(cells: np.ndarray) -> np.ndarray:
     """Facets that belong to exactly one simplex, each row sorted."""
     dim = cells.shape[1] - 1
@@ -124,6 +136,7 @@ def structured_mesh(
     origin: Sequence[float] | None = None,
     contact_center: Sequence[float] | None = None,
     grading: float = 1.0,
+    pattern: str = "diagonal",
 ) -> Mesh:
     """Rectangle (2D) or box (3D) ``origin + [0, size]`` meshed into simplices.
 
@@ -147,7 +160,10 @@ def structured_mesh(
     points = np.stack([g.ravel(order="F") for g in np.meshgrid(*axes, indexing="ij")], axis=1)
     shape = tuple(int(d) for d in divisions)
     flip = [0.5 * (axes[a][:-1] + axes[a][1:]) < toward[a] for a in range(dim)]
-    cells = _structured_simplices(shape, flip)
+    if pattern == "crossed" and dim == 2:
+        points, cells = _crossed_triangles(points, shape)
+    else:
+        cells = _structured_simplices(shape, flip)
     # reflected cells come out clockwise: swap two vertices to orient all alike
     X = points[cells]
     det = np.linalg.det(np.swapaxes(X[:, 1:] - X[:, :1], 1, 2))

@@ -236,7 +236,8 @@ GENERATORS = {"rectangle": 2, "box": 3}
 
 def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh") -> Mesh:
     """Read ``file`` or run the ``generator`` ('rectangle' 2D, 'box' 3D)."""
-    _only(section, {"file", "generator", "size", "divisions", "origin", "grading", "contact_radius", "contact_center"}, prefix)
+    _only(section, {"file", "generator", "size", "divisions", "origin", "grading", "contact_radius", "contact_center",
+                    "pattern"}, prefix)
     if ("file" in section) == ("generator" in section):
         raise InputError(prefix, "give exactly one of 'file' or 'generator'")
     if "file" in section:
@@ -265,9 +266,13 @@ def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh") -> Mesh:
         raise InputError(f"{prefix}.contact_radius", f"must be > 0, got {radius!r}")
     origin = _float_list(section, "origin", prefix, dim)
     center = _float_list(section, "contact_center", prefix, dim - 1)
+    pattern = section.get("pattern", "diagonal")
+    if pattern not in ("diagonal", "crossed") or (pattern == "crossed" and dim == 3):
+        raise InputError(f"{prefix}.pattern", f"must be 'diagonal' or (2D only) 'crossed', got {pattern!r}")
     if origin is not None and origin[-1] != 0.0:
         raise InputError(f"{prefix}.origin", "the body must sit on the contact plane: the last coordinate must be 0")
-    return structured_mesh(size, divisions, radius, origin=origin, contact_center=center, grading=grading)
+    return structured_mesh(size, divisions, radius, origin=origin, contact_center=center, grading=grading,
+                           pattern=pattern)
 
 
 def default_boundary(mesh: Mesh) -> tuple[tuple[str, ...], tuple[str, ...]]:

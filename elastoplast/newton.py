@@ -91,16 +91,15 @@ class HessianLayout:
     ``B_local (n_el, k, m)`` are the element strain matrices on the ``m``
     local dofs ``local (n_el, m)`` (free-dof numbers, -1 where fixed). The
     upper triangle of the ``(n_free + 1)`` Hessian is stored in CSR with
-    ``indptr``/``indices``; ``scatter`` sends each element entry (those with
-    ``keep``) to its slot, ``u_slots``/``u_rows`` are the slots of the column
+    ``indptr``/``indices``; ``slots (n_el, m(m+1)/2)`` sends each upper entry
+    ``upper`` of an element matrix to its slot (-1: a fixed dof), ``u_slots``/``u_rows`` are the slots of the column
     of U, ``diag`` the diagonal slots, ``row``/``col`` each slot's indices.
     """
 
     B_local: np.ndarray
     local: np.ndarray
     upper: np.ndarray
-    keep: np.ndarray
-    scatter: np.ndarray
+    slots: np.ndarray
     indptr: np.ndarray
     indices: np.ndarray
     row: np.ndarray
@@ -132,7 +131,7 @@ def hessian_layout(disc: Discretization) -> HessianLayout:
     el, comp = B.row // k, B.row % k
     slot = np.argmax(local[el] == B.col[:, None], axis=1)
     B_local = np.zeros((n_el, k, m))
-    np.add.at(B_local, (el, comp, slot), B.data)
+    B_local[el, comp, slot] = B.data  # (row, col) pairs of B are unique
 
     iu, ju = np.triu_indices(m)
     gi, gj = local[:, iu], local[:, ju]
@@ -151,24 +150,38 @@ def hessian_layout(disc: Discretization) -> HessianLayout:
     indptr = np.concatenate([[0], np.cumsum(np.bincount(row, minlength=n))])
     n_el_keys = lo.size
     diag = np.searchsorted(uniq, np.arange(n) * n + np.arange(n))
+    slots = -np.ones(keep.size, dtype=np.int64)
+    slots[keep] = inverse[:n_el_keys]
+    slots = slots.reshape(n_el, iu.size)
     return HessianLayout(
-        B_local=B_local, local=local, upper=np.stack([iu, ju]), keep=keep, scatter=inverse[:n_el_keys],
+        B_local=B_local, local=local, upper=np.stack([iu, ju]), slots=slots,
         indptr=indptr.astype(np.int64), indices=col.astype(np.int64), row=row, col=col, diag=diag,
         u_slots=inverse[n_el_keys:], u_rows=np.append(u_rows, n - 1), contact_dofs=cdofs,
     )
 
 
-def assemble_hessian(lay: HessianLayout, volumes: np.ndarray, tangent: np.ndarray) -> np.ndarray:
+def assemble_hessian(lay: HessianLayout, volumes: np.ndarray, tangent: np.ndarray,
+                     elastic: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Upper-triangle CSR values of ``T^T diag(K_t, 0) T`` in the variables y.
 
     ``K_t = sum_T |T| B_T^T C_ep,T B_T``; with ``u = y_u + U e_c`` (``e_c`` the
     indicator of the vertical contact dofs) the Hessian in y is
-    ``[[K_t, K_t e_c], [e_c^T K_t, e_c^T K_t e_c]]``.
+    ``[[K_t, K_t e_c], [e_c^T K_t, e_c^T K_t e_c]]``. With ``elastic = (C,
+    values of K for C everywhere)`` only the elements whose tangent differs
+    from C (the plastic ones) are assembled, as a correction.
     """
-    DB = np.matmul(tangent * volumes[:, None, None], lay.B_local)
-    Ke = np.matmul(np.swapaxes(lay.B_local, 1, 2), DB)
-    vals = Ke[:, lay.upper[0], lay.upper[1]].ravel()[lay.keep]
-    data = np.bincount(lay.scatter, weights=vals, minlength=lay.indices.size)
+    if elastic is None:
+        elements, C, data = np.arange(volumes.size), 0.0, np.zeros(lay.indices.size)
+    else:
+        C, base = elastic
+        elements = np.flatnonzero(np.any(tangent != C, axis=(1, 2)))
+        data = base.copy()
+    Bl = lay.B_local[elements]
+    DB = np.matmul((tangent[elements] - C) * volumes[elements, None, None], Bl)
+    Ke = np.matmul(np.swapaxes(Bl, 1, 2), DB)[:, lay.upper[0], lay.upper[1]]
+    slots = lay.slots[elements]
+    keep = slots >= 0
+    data += np.bincount(slots[keep], weights=Ke[keep], minlength=data.size)
     n = lay.size
     K = sp.csr_matrix((data, lay.indices, lay.indptr), shape=(n, n))
     ec = np.zeros(n)
@@ -367,7 +380,7 @@ def active_set(st: State, cdofs: np.ndarray, lower: np.ndarray, diag: np.ndarray
     return act
 
 
-def newton_direction(lay, linear, st, cdofs, lower, volumes, kkt_worst, options, costs, timings):
+def newton_direction(lay, linear, st, cdofs, lower, volumes, elastic, kkt_worst, options, costs, timings):
     """Newton step on the face of the eps-active set: the active contact
     variables go to their bound, the others solve ``H_FF d_F = -grad_F - H_FA d_A``.
 
@@ -377,7 +390,7 @@ def newton_direction(lay, linear, st, cdofs, lower, volumes, kkt_worst, options,
     and within the iterations that cost less than a refactorisation.
     """
     t0 = time.perf_counter()
-    data = assemble_hessian(lay, volumes, st.tangent)
+    data = assemble_hessian(lay, volumes, st.tangent, elastic)
     timings["assembly"] += time.perf_counter() - t0
     act = active_set(st, cdofs, lower, data[lay.diag])
     fixed = np.zeros(lay.size, dtype=bool)
@@ -436,6 +449,8 @@ def solve_newton(disc: Discretization, options: NewtonOptions = NewtonOptions(),
     linear = SPDSolver(lay, options.linear_solver, options.threads)
     cdofs = lay.contact_dofs
     lower = -nd.psi
+    C = nd.material.stiffness(nd.dim)
+    elastic = (C, assemble_hessian(lay, nd.volumes, np.broadcast_to(C, (nd.n_elements,) + C.shape)))
     timings["setup"] = time.perf_counter() - t_start
 
     if warm_start is not None:
@@ -470,7 +485,7 @@ def solve_newton(disc: Discretization, options: NewtonOptions = NewtonOptions(),
             if kkt.worst <= tol or iteration >= options.max_iter:
                 break
             iteration += 1
-            direction, info = newton_direction(lay, linear, st, cdofs, lower, target.volumes, kkt.worst,
+            direction, info = newton_direction(lay, linear, st, cdofs, lower, target.volumes, elastic, kkt.worst,
                                                options, costs, timings)
             t0 = time.perf_counter()
             accepted, alpha = line_search(target, cdofs, lower, st, direction, options.armijo)

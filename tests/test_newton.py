@@ -116,3 +116,4 @@ def test_max_iterations_reports_status_and_true_residuals():
     assert sol.iterations == 2
     assert sol.kkt.worst > TOL
     assert sol.history[-1]["kkt_worst"] == pytest.approx(sol.kkt.worst, rel=1e-6)
+

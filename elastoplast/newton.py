@@ -144,12 +144,16 @@ def hessian_layout(disc: Discretization) -> HessianLayout:
     is_c[cdofs] = True
     touch = is_c[lo] | is_c[hi]
     u_rows = np.unique(np.concatenate([lo[touch], hi[touch]]))
-    keys = np.concatenate([lo * n + hi, u_rows * n + (n - 1), [n * n - 1]])
-    uniq, inverse = np.unique(keys, return_inverse=True)
-    row, col = uniq // n, uniq % n
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(row, minlength=n))])
+    rows = np.concatenate([lo, u_rows, [n - 1]])
+    cols = np.concatenate([hi, np.full(u_rows.size, n - 1), [n - 1]])
+    pattern = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))  # sums duplicates, sorts
+    pattern.sort_indices()
+    indptr, col = pattern.indptr, pattern.indices
+    row = np.repeat(np.arange(n), np.diff(indptr))
+    uniq = row.astype(np.int64) * n + col
+    inverse = np.searchsorted(uniq, rows.astype(np.int64) * n + cols)
     n_el_keys = lo.size
-    diag = np.searchsorted(uniq, np.arange(n) * n + np.arange(n))
+    diag = np.searchsorted(uniq, np.arange(n, dtype=np.int64) * (n + 1))
     slots = -np.ones(keep.size, dtype=np.int64)
     slots[keep] = inverse[:n_el_keys]
     slots = slots.reshape(n_el, iu.size)

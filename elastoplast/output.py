@@ -1,4 +1,5 @@
-"""Writing results: ``solution.vtu`` for ParaView and ``summary.json``."""
+"""Writing results: ``solution.vtu`` for ParaView, ``summary.json`` and, for iterative
+methods, ``convergence.png``."""
 
 from __future__ import annotations
 
@@ -72,7 +73,48 @@ def write_results(out_dir: str | Path, disc: Discretization, sol: Solution, extr
     if extra:
         data.update(extra)
     (out / "summary.json").write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
+    if sol.history:
+        plot_convergence(out / "convergence.png", sol.history, f"{sol.method}: {sol.status.value}")
     return data
+
+
+def plot_convergence(path: str | Path, history: list[dict[str, Any]], title: str = "") -> bool:
+    """Plot the KKT residuals of an iteration history against the iteration.
+
+    Each history row may hold ``residuals`` (a dict name -> value, one curve
+    each) and ``kkt_worst``; rows are placed at their ``iteration`` (else their
+    index). Returns False, writing nothing, when no row has residuals.
+    """
+    from matplotlib.figure import Figure
+
+    rows = [h for h in history if isinstance(h.get("residuals"), dict) or "kkt_worst" in h]
+    if not rows:
+        return False
+    its = [h.get("iteration", i) for i, h in enumerate(rows)]
+    fig = Figure(figsize=(6.4, 4.2), layout="constrained")
+    ax = fig.add_subplot()
+    curves = {name: [h.get("residuals", {}).get(name, np.nan) for h in rows]
+              for name in sorted({k for h in rows for k in h.get("residuals", {})})}
+    for name, vals in curves.items():
+        ax.semilogy(its, _positive(vals), lw=1.0, label=name)
+    if any("kkt_worst" in h for h in rows):
+        worst = _positive([h.get("kkt_worst", np.nan) for h in rows])
+        ax.semilogy(its, worst, "k--", lw=1.5, label="worst")
+        if np.any(np.isfinite(worst)):  # show the worst residual's range, down to 1e-4 below its end
+            ax.set_ylim(np.nanmin(worst) * 1e-4, np.nanmax(worst) * 10)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("relative KKT residual")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.savefig(Path(path), dpi=110)
+    return True
+
+
+def _positive(values: list[Any]) -> np.ndarray:
+    """Values as floats with zeros and negatives as NaN (not drawn on a log axis)."""
+    v = np.asarray(values, dtype=float)
+    return np.where(v > 0, v, np.nan)
 
 
 def _json_default(obj: Any) -> Any:

@@ -13,6 +13,7 @@ from .discretize import Discretization
 from .errors import InputError
 from .newton import newton_method
 from .solution import Solution
+from .uzawa import uzawa_method
 
 
 def _conic(fn):
@@ -29,6 +30,7 @@ METHODS: dict[str, Callable[..., Solution]] = {
     "conic": _conic(solve_conic),
     "conic-cvxpy": _conic(solve_conic_cvxpy),
     "conic-displacement": _conic(solve_conic_displacement),
+    "uzawa": uzawa_method,
     "newton": newton_method,
 }
 

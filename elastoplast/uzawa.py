@@ -1,0 +1,499 @@
+"""Uzawa's method of the paper (MATH.md section 7): two projections per iteration.
+
+Starting from ``(u^0, U^0)`` in K_h, iteration n does
+
+* step (i), :func:`project_stresses`: ``sigma_hat^{n+1} = R(eps(u^n))``, the
+  closed-form return mapping element by element (the projection onto P_h);
+* step (ii), :func:`project_contact`: ``(u^{n+1}, U^{n+1})`` minimises
+  ``1/2 |eps(v - u^n)|^2 + 1/2 (V - U^n)^2 + rho (sigma^{n+1}, eps(v)) - rho F V``
+  over K_h, a projected gradient step in the metric ``G = sum_T |T| B_T^T B_T``
+  (plus 1 for V). G is factored once (:func:`factorize_metric`); the
+  projection is a small QP in the contact multipliers (:func:`solve_contact_qp`).
+
+The iteration stops on the KKT residuals of the certificate (MATH.md section 6)
+evaluated at the candidate ``(R(eps(u^n)), u^n, U^n)``, never on the step length.
+Every function works on plain arrays and a factor so that accelerated variants
+can reuse the steps. The loop runs in the O(1) units of
+:func:`~elastoplast.discretize.nondimensionalize`; the answer is certified in the
+user's units by :func:`~elastoplast.solution.make_solution`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .certificate import KKTResiduals, certify
+from .discretize import Discretization, Units, nondimensionalize
+from .errors import InputError
+from .material import Material, return_mapping, von_mises
+from .solution import ACTIVE_FORCE_SHARE, PLASTIC_SHARE, Solution, Status, make_solution
+
+Solve = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class UzawaOptions:
+    """Settings of :func:`solve_uzawa`.
+
+    ``rho``: the step, in 1/stress (``None``: :func:`default_rho`); it must lie
+    in ``(0, 2 / lambda_max(C))``. ``tol``: bound on every relative residual of
+    the certificate (:func:`within_tolerance`). ``check_every``: iterations
+    between certificate evaluations, history rows are written at those;
+    ``None`` picks it from the measured cost of one certificate against one
+    iteration so that checking costs at most about a quarter of the run.
+    ``initial``: warm start from a previous solution of the same
+    discretisation (any force). ``factorization``: a key of
+    :data:`FACTORIZATIONS` or ``"auto"``. ``rigid_weight``: see
+    :func:`contact_operators`.
+    """
+
+    rho: float | None = None
+    tol: float = 1e-6
+    max_iter: int = 5000
+    check_every: int | None = None
+    initial: Solution | None = None
+    progress: bool = False
+    factorization: str = "auto"
+    #: weight w of the rigid body's displacement in the metric ``|eps(v)|^2 + w V^2``,
+    #: in the problem's units (length^(d-2)); None: automatic (:func:`contact_operators`);
+    #: 1.0 is the paper's literal metric
+    rigid_weight: float | None = None
+    #: a residual this many times above the first one means divergence
+    divergence_factor: float = 1e8
+    #: at most this many iterations between checks when ``check_every`` is automatic
+    max_check_interval: int = 10
+
+
+# ----------------------------------------------------------------------------
+# the step rho
+# ----------------------------------------------------------------------------
+
+
+def rho_bound(material: Material) -> float:
+    """The paper's convergence bound ``2 / lambda_max(C)`` (MATH.md section 7)."""
+    return 2.0 / material.max_stiffness_eigenvalue()
+
+
+#: default step as a share of the bound 2 / lambda_max(C); the rho sweep of
+#: benchmarks/uzawa (RESULTS.md) found the iteration count falling monotonically
+#: up to the bound, on 2D and 3D problems, elastic-dominated and plastic alike
+DEFAULT_RHO_SHARE = 0.95
+
+
+def default_rho(material: Material) -> float:
+    """``DEFAULT_RHO_SHARE * 2 / lambda_max(C)``: safely inside the convergence bound."""
+    return DEFAULT_RHO_SHARE * rho_bound(material)
+
+
+def check_rho(rho: float, material: Material, field: str = "rho") -> float:
+    """Refuse a step outside ``(0, 2 / lambda_max(C))``."""
+    bound = rho_bound(material)
+    if not (isinstance(rho, (int, float)) and np.isfinite(rho) and 0.0 < rho < bound):
+        raise InputError(
+            field,
+            f"must lie in (0, 2/lambda_max(C)) = (0, {bound:.6g}) for Uzawa to converge "
+            f"(lambda_max(C) = E/(1-2nu) = {material.max_stiffness_eigenvalue():.6g}); got {rho!r}",
+        )
+    return float(rho)
+
+
+# ----------------------------------------------------------------------------
+# the metric G and its factorisation
+# ----------------------------------------------------------------------------
+
+
+def metric_matrix(disc: Discretization) -> sp.csc_matrix:
+    """``G = sum_T |T| B_T^T B_T`` on the free dofs, so ``|eps(v)|^2 = v^T G v``."""
+    W = sp.diags(np.repeat(disc.volumes, disc.k))
+    return (disc.B.T @ W @ disc.B).tocsc()
+
+
+def _factor_splu(G: sp.spmatrix) -> Solve:
+    lu = spla.splu(sp.csc_matrix(G), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                   options={"SymmetricMode": True})
+    return lu.solve
+
+
+def _factor_cholespy(G: sp.spmatrix) -> Solve:
+    import cholespy
+
+    A = sp.csc_matrix(G)
+    A.sort_indices()
+    chol = cholespy.CholeskySolverD(A.shape[0], A.indptr.astype(np.int32), A.indices.astype(np.int32),
+                                    np.ascontiguousarray(A.data), cholespy.MatrixType.CSC)
+
+    def solve(b: np.ndarray) -> np.ndarray:
+        b = np.ascontiguousarray(b, dtype=float)
+        x = np.empty_like(b)
+        chol.solve(b, x)
+        return x
+
+    return solve
+
+
+def _factor_pypardiso(G: sp.spmatrix) -> Solve:
+    import pypardiso
+
+    A = sp.triu(G, format="csr")  # mtype 2 (real SPD) reads the upper triangle
+    A.sort_indices()
+    ps = pypardiso.PyPardisoSolver(mtype=2)
+    ps.set_statistical_info_off()
+    ps.factorize(A)
+    return lambda b: ps.solve(A, np.asarray(b, dtype=float))
+
+
+def _factor_qdldl(G: sp.spmatrix) -> Solve:
+    import qdldl
+
+    f = qdldl.Solver(sp.triu(G, format="csc"), upper=True)
+
+    def solve(b: np.ndarray) -> np.ndarray:
+        b = np.asarray(b, dtype=float)
+        if b.ndim == 1:
+            return f.solve(b)
+        return np.column_stack([f.solve(np.ascontiguousarray(c)) for c in b.T])
+
+    return solve
+
+
+#: sparse factorisations of G, each ``G -> solve(b)`` for one or several right-hand sides
+FACTORIZATIONS: dict[str, Callable[[sp.spmatrix], Solve]] = {
+    "splu": _factor_splu,
+    "cholespy": _factor_cholespy,
+    "pypardiso": _factor_pypardiso,
+    "qdldl": _factor_qdldl,
+}
+#: "auto" choice, measured in benchmarks/uzawa/components.json: on the 3D sphere with
+#: 52,728 tetrahedra (G: 24,375 rows, 958k nonzeros) PARDISO factors 3-6x faster than
+#: SuperLU and CHOLMOD (cholespy), which decides the setup; below about half a million
+#: nonzeros cholespy is the fastest and PARDISO's fixed cost (0.3-2 s to locate and start
+#: MKL) dominates. Each list is tried in order among the installed packages.
+AUTO_LARGE_NNZ = 500_000
+AUTO_ORDER = {"small": ("cholespy", "splu"), "large": ("pypardiso", "cholespy", "splu")}
+
+
+def factorize_metric(G: sp.spmatrix, method: str = "auto") -> Solve:
+    """Factor G once; returns ``solve(b) = G^{-1} b`` (b of shape (n,) or (n, m))."""
+    if method == "auto":
+        for name in AUTO_ORDER["large" if G.nnz >= AUTO_LARGE_NNZ else "small"]:
+            try:
+                return FACTORIZATIONS[name](G)
+            except ImportError:
+                continue
+    if method not in FACTORIZATIONS:
+        raise InputError("factorization", f"unknown factorisation {method!r} (choose from {sorted(FACTORIZATIONS)} or 'auto')")
+    return FACTORIZATIONS[method](G)
+
+
+@dataclass(frozen=True)
+class ContactOperators:
+    """What step (ii) needs besides G^{-1}: ``Z = G^{-1} N^T`` (free dofs x contact
+    nodes), the weight ``w`` of the rigid body's displacement in the metric
+    ``|v|_G^2 + w V^2`` and the Schur complement ``S = N G^{-1} N^T + 1 1^T / w``
+    of the dual QP."""
+
+    Z: np.ndarray
+    S: np.ndarray
+    weight: float = 1.0
+
+
+#: automatic weight of V: ``1 / w = RIGID_WEIGHT_FACTOR * trace(N G^{-1} N^T)``
+RIGID_WEIGHT_FACTOR = 10.0
+
+
+def contact_operators(N: sp.spmatrix, solve: Solve, weight: float | None = None) -> ContactOperators:
+    """``Z = G^{-1} N^T`` (one solve with n_contact right-hand sides) and ``S``.
+
+    The paper writes the metric as ``|eps(v)|^2 + V^2``; in 3D the two terms
+    carry different units (length^3 against length^2), so the weight of V is
+    a choice. ``weight=None`` takes ``1 / w = 10 trace(N G^{-1} N^T)``: V then
+    costs nothing next to the contact displacements, which the measured sweep
+    (benchmarks/uzawa/RESULTS.md) found fastest, on a plateau reached a decade
+    earlier; a weight of 1 in the problem's units is the paper's literal metric.
+    """
+    Z = solve(N.T.toarray())
+    Z = Z.reshape(N.shape[1], N.shape[0])
+    M = N @ Z
+    M = 0.5 * (M + M.T)
+    if weight is None:
+        weight = 1.0 / (RIGID_WEIGHT_FACTOR * max(np.trace(M), np.finfo(float).tiny))
+    if not (np.isfinite(weight) and weight > 0):
+        raise InputError("rigid_weight", f"must be a number > 0, got {weight!r}")
+    return ContactOperators(Z=Z, S=M + 1.0 / weight, weight=float(weight))
+
+
+# ----------------------------------------------------------------------------
+# step (i): projection onto P_h
+# ----------------------------------------------------------------------------
+
+
+def project_stresses(material: Material, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Step (i): ``sigma_hat^{n+1} = R(eps(u^n))`` element by element.
+
+    R is the closed-form projection of ``(C eps, 0)`` onto the admissible set D
+    in the energy metric (MATH.md section 6); ``eps`` has shape ``(n_el, k)``.
+    """
+    sigma, xi, _ = return_mapping(material, eps)
+    return sigma, xi
+
+
+# ----------------------------------------------------------------------------
+# step (ii): projection onto K_h
+# ----------------------------------------------------------------------------
+
+
+def solve_contact_qp(S: np.ndarray, g: np.ndarray, lam0: np.ndarray | None = None,
+                     max_iter: int | None = None) -> np.ndarray:
+    """Exact solution of ``min 1/2 lam^T S lam + g^T lam  s.t.  lam >= 0`` (S SPD).
+
+    A primal active-set method (Nocedal & Wright, Algorithm 16.3, for bound
+    constraints), warm-started from ``lam0 >= 0``: on the free set F it solves
+    ``S_FF lam_F = -g_F`` exactly (Cholesky); a negative entry blocks the step
+    and joins the bound set; an optimal point of the subproblem whose
+    multipliers ``w = S lam + g`` are negative on the bound set frees the most
+    negative one. It ends at ``lam >= 0, w >= 0, lam_i w_i = 0`` to rounding.
+    Falls back to Lawson-Hanson NNLS if it ever cycles.
+    """
+    n = g.size
+    lam = np.zeros(n) if lam0 is None else np.maximum(np.asarray(lam0, dtype=float), 0.0)
+    free = lam > 0.0
+    scale = max(np.abs(g).max(initial=0.0), np.abs(np.diag(S)).max(initial=0.0) * np.abs(lam).max(initial=0.0))
+    tol = 64.0 * np.finfo(float).eps * max(scale, np.finfo(float).tiny) * max(1.0, np.sqrt(n))
+    limit = max_iter if max_iter is not None else 4 * n + 20
+    for _ in range(limit):
+        F = np.flatnonzero(free)
+        y = np.zeros(n)
+        if F.size:
+            y[F] = sla.cho_solve(sla.cho_factor(S[np.ix_(F, F)]), -g[F])
+        if np.all(y[F] >= 0.0):
+            lam = y
+            w = S @ lam + g
+            w[free] = np.inf
+            j = int(np.argmin(w))
+            if n == 0 or w[j] >= -tol:
+                return lam
+            free[j] = True
+        else:
+            blocking = F[y[F] < 0.0]
+            ratios = lam[blocking] / (lam[blocking] - y[blocking])
+            alpha = ratios.min()
+            lam = lam + alpha * (y - lam)
+            hit = blocking[ratios <= alpha]
+            lam[hit] = 0.0
+            free[hit] = False
+            lam[~free] = 0.0
+    return _nnls_fallback(S, g)
+
+
+def _nnls_fallback(S: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """The same QP as NNLS: with ``S = L L^T``, ``min |L^T lam + L^{-1} g|^2``."""
+    from scipy.optimize import nnls
+
+    L = np.linalg.cholesky(S)
+    return nnls(L.T, -sla.solve_triangular(L, g, lower=True), maxiter=50 * g.size)[0]
+
+
+def project_contact(
+    u: np.ndarray,
+    U: float,
+    r: np.ndarray,
+    rho: float,
+    force: float,
+    N: sp.spmatrix,
+    psi: np.ndarray,
+    solve: Solve,
+    ops: ContactOperators,
+    lam0: np.ndarray | None = None,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Step (ii): the projection onto K_h in the metric ``G + w`` (``w = ops.weight``).
+
+    ``(u^{n+1}, U^{n+1})`` minimises ``1/2 |v - u|_G^2 + w/2 (V - U)^2 + rho r.v - rho F V``
+    over ``N v + psi - V >= 0``, with ``r = sum_T |T| B_T^T sigma_T^{n+1}``. The
+    unconstrained minimiser is ``v* = u - rho G^{-1} r``, ``V* = U + rho F / w``;
+    with multipliers ``lam >= 0`` the minimiser is ``v = v* + Z lam``,
+    ``V = V* - sum(lam) / w``, where lam solves the dual QP
+    ``min 1/2 lam^T S lam + lam^T g*``, ``g* = N v* + psi - V*``, ``lam >= 0``
+    (:func:`solve_contact_qp`). The new gaps are ``g* + S lam >= 0``.
+    At a fixed point ``r = N^T lam / rho``: ``lam / rho`` are the contact forces.
+    Returns ``(u_new, U_new, lam)``.
+    """
+    w = ops.weight
+    v_star = u - rho * solve(r) if rho else np.array(u, dtype=float)
+    V_star = U + rho * force / w
+    g_star = N @ v_star + psi - V_star
+    lam = solve_contact_qp(ops.S, g_star, lam0)
+    on = np.flatnonzero(lam)
+    return v_star + ops.Z[:, on] @ lam[on], float(U + (rho * force - lam.sum()) / w), lam
+
+
+# ----------------------------------------------------------------------------
+# stopping test
+# ----------------------------------------------------------------------------
+
+
+def within_tolerance(kkt: KKTResiduals, tol: float) -> bool:
+    """Every certificate residual ``|r_i| / s_i <= tol``.
+
+    The certificate already divides each residual by its stated scale ``s_i``
+    (see :class:`~elastoplast.certificate.KKTResiduals`), so this is the test
+    ``|r_i| <= eps_abs + eps_rel * s_i`` with ``eps_rel = tol`` and
+    ``eps_abs = 0``: the residuals carry different units (stress, force,
+    length), so no single absolute floor would mean anything.
+    """
+    return all(value <= tol for value in kkt.as_dict().values())
+
+
+# ----------------------------------------------------------------------------
+# the loop
+# ----------------------------------------------------------------------------
+
+
+def _initial_point(disc: Discretization, nd: Discretization, units: Units, options: UzawaOptions, rho_nd: float):
+    """``(u, U, lam)`` in scaled units: zero, or the warm start's values."""
+    init = options.initial
+    if init is None:
+        return np.zeros(nd.n_free), 0.0, None
+    u = disc.free_displacement(init.u) / units.displacement
+    if u.size != nd.n_free or init.contact_force.size != nd.n_contact:
+        raise InputError("initial", "the warm start comes from another discretisation (sizes differ)")
+    lam = rho_nd * np.maximum(init.contact_force, 0.0) / units.force
+    return u, init.U / units.displacement, lam
+
+
+def _check_interval(options: UzawaOptions, t_certificate: float, t_iteration: float) -> int:
+    """Iterations between checks: as given, or such that checking costs about a quarter."""
+    if options.check_every is not None:
+        return options.check_every
+    m = int(np.ceil(t_certificate / (0.25 * max(t_iteration, 1e-9))))
+    return int(min(max(m, 1), options.max_check_interval))
+
+
+def _validate(options: UzawaOptions, material: Material) -> float:
+    """Check the options; returns the step rho."""
+    rho = check_rho(default_rho(material) if options.rho is None else options.rho, material)
+    if isinstance(options.max_iter, bool) or not isinstance(options.max_iter, int) or options.max_iter < 0:
+        raise InputError("max_iter", f"must be a non-negative integer, got {options.max_iter!r}")
+    if not (isinstance(options.tol, (int, float)) and options.tol > 0):
+        raise InputError("tol", f"must be a number > 0, got {options.tol!r}")
+    ce = options.check_every
+    if ce is not None and (isinstance(ce, bool) or not isinstance(ce, int) or ce < 1):
+        raise InputError("check_every", f"must be a positive integer, got {ce!r}")
+    return rho
+
+
+def solve_uzawa(disc: Discretization, options: UzawaOptions = UzawaOptions()) -> Solution:
+    """Uzawa's method (MATH.md section 7) with the certificate as stopping test.
+
+    Iteration n evaluates step (i) at ``u^n``; the certificate is evaluated at
+    the candidate ``(R(eps(u^n)), u^n, U^n)`` (whose constitutive residual is
+    zero by construction) and, unless it passes, step (ii) gives ``u^{n+1}``.
+    Status: CONVERGED when :func:`within_tolerance` holds, MAX_ITERATIONS after
+    ``max_iter`` steps (the answer is then the last candidate, with its true
+    residuals), DIVERGED on non-finite values or residuals ``divergence_factor``
+    times above the first.
+    """
+    from tqdm.auto import tqdm
+
+    rho = _validate(options, disc.material)
+    t_start = time.perf_counter()
+    timings = {"setup": 0.0, "stresses": 0.0, "contact": 0.0, "certificate": 0.0}
+
+    nd, units = nondimensionalize(disc)
+    rho_nd = rho * units.E  # the step in the scaled units, where E = 1
+    solve = factorize_metric(metric_matrix(nd), options.factorization)
+    weight = None if options.rigid_weight is None else options.rigid_weight / units.length ** (disc.dim - 2)
+    ops = contact_operators(nd.N, solve, weight)
+    u, U, lam = _initial_point(disc, nd, units, options, rho_nd)
+    # the start must lie in K_h: project it (a step with rho = 0 is the pure projection)
+    u, U, _ = project_contact(u, U, np.zeros(nd.n_free), 0.0, nd.force, nd.N, nd.psi, solve, ops)
+    timings["setup"] = time.perf_counter() - t_start
+
+    history: list[dict[str, Any]] = []
+    status, message, first_worst, interval = Status.MAX_ITERATIONS, "", None, options.check_every or 1
+    bar = tqdm(total=options.max_iter, disable=not options.progress, desc="uzawa", unit="it", leave=False)
+    n = 0
+    try:
+        while True:
+            t0 = time.perf_counter()
+            sigma, xi = project_stresses(nd.material, nd.strain(u))  # step (i)
+            r = nd.internal_force(sigma)
+            t1 = time.perf_counter()
+            timings["stresses"] += t1 - t0
+            if not (np.all(np.isfinite(u)) and np.isfinite(U)):
+                status, message = Status.DIVERGED, f"non-finite iterate at iteration {n}"
+                break
+            last = n == options.max_iter
+            if n % interval == 0 or last:
+                kkt = certify(nd, sigma, xi, nd.full_displacement(u), U)
+                worst = kkt.worst
+                first_worst = worst if first_worst is None else first_worst
+                lam_c = nd.N @ r
+                history.append({
+                    "iteration": n, "residuals": kkt.as_dict(), "kkt_worst": worst,
+                    "U": U * units.displacement,
+                    "n_active": int(np.sum(lam_c > ACTIVE_FORCE_SHARE * max(lam_c.max(initial=0.0), 0.0))),
+                    "n_plastic": int(np.sum(von_mises(sigma) >= PLASTIC_SHARE * (nd.material.yield_stress + xi))),
+                    "time_s": time.perf_counter() - t_start,
+                })
+                t_check = time.perf_counter() - t1
+                timings["certificate"] += t_check
+                bar.set_postfix(kkt=f"{worst:.1e}", U=f"{U * units.displacement:.5g}", refresh=False)
+                if within_tolerance(kkt, options.tol):
+                    status, message = Status.CONVERGED, f"KKT residuals <= {options.tol:g} after {n} iterations"
+                    break
+                if not np.isfinite(worst) or worst > options.divergence_factor * max(first_worst, options.tol):
+                    status, message = Status.DIVERGED, f"KKT residual {worst:.3g} grew from {first_worst:.3g}"
+                    break
+            if last:
+                message = f"stopped after max_iter = {n} iterations (worst KKT residual {worst:.3g} > tol {options.tol:g})"
+                break
+            t2 = time.perf_counter()
+            u, U, lam = project_contact(u, U, r, rho_nd, nd.force, nd.N, nd.psi, solve, ops, lam)  # step (ii)
+            t3 = time.perf_counter()
+            timings["contact"] += t3 - t2
+            if n == 0:
+                interval = _check_interval(options, t_check, t3 - t0 - t_check)
+            n += 1
+            bar.update(1)
+    finally:
+        bar.close()
+    timings["total"] = time.perf_counter() - t_start
+    return make_solution(
+        disc, method="uzawa", status=status, sigma=sigma * units.stress, xi=xi * units.stress,
+        u_free=u * units.displacement, U=U * units.displacement, iterations=n, timings=timings,
+        message=f"{message} (rho = {rho:.6g}, bound {rho_bound(disc.material):.6g})", history=history,
+    )
+
+
+def uzawa_method(disc: Discretization, tol: float | None = None, max_iter: int | None = None,
+                 rho: float | None = None, progress: bool = False, **options: Any) -> Solution:
+    """The ``"uzawa"`` entry of the method registry: keyword options to :class:`UzawaOptions`;
+    keywords it does not know are ignored."""
+    known = set(UzawaOptions.__dataclass_fields__)
+    kw = {k: v for k, v in options.items() if k in known}
+    kw.update({k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("rho", rho)) if v is not None})
+    return solve_uzawa(disc, UzawaOptions(progress=progress, **kw))
+
+
+def load_sweep(disc: Discretization, forces: Sequence[float], options: UzawaOptions = UzawaOptions()) -> list[Solution]:
+    """Solve for each force in turn, each solve warm-started from the previous one.
+
+    Hencky's law is path independent, so the order changes the speed, not the
+    answers. ``options.initial`` (if any) warm-starts the first solve.
+    """
+    from dataclasses import replace
+
+    out: list[Solution] = []
+    previous = options.initial
+    for F in forces:
+        sol = solve_uzawa(disc.with_force(F), replace(options, initial=previous))
+        out.append(sol)
+        previous = sol
+    return out

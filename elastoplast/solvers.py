@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+from .accelerated import uzawa_fast_method
 from .conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
 from .discretize import Discretization
 from .errors import InputError
@@ -32,6 +33,7 @@ METHODS: dict[str, Callable[..., Solution]] = {
     "conic-displacement": _conic(solve_conic_displacement),
     "uzawa": uzawa_method,
     "newton": newton_method,
+    "uzawa-fast": uzawa_fast_method,
 }
 
 

@@ -379,26 +379,45 @@ def _solver_stats(prob) -> int:
     return int(stats.num_iters) if stats is not None and stats.num_iters is not None else 0
 
 
-def solve_conic_cvxpy(disc: Discretization, options: ConicOptions = ConicOptions()) -> Solution:
-    """(S) through CVXPY. CVXPY's equality duals enter its Lagrangian with a plus
-    sign, so ``u = -y_equilibrium`` and ``U = -y_force`` as for raw Clarabel."""
-    timings: dict[str, float] = {"setup": 0.0, "solve": 0.0}
+def _cvxpy_scaled(build, extract, options: ConicOptions, timings: dict[str, float]):
+    """``scaled(nd, *args)`` for :func:`_finish`: build the CVXPY model with
+    ``build(nd, *args)``, solve it, and read the answer with
+    ``extract(nd, variables, constraints) -> (sigma, xi, u, U, lam)``."""
 
-    @elastic_first
-    def scaled(nd: Discretization, with_yield: bool):
+    def scaled(nd: Discretization, *args):
         t0 = time.perf_counter()
-        prob, var, cons = stress_program(nd, with_yield)
+        prob, var, cons = build(nd, *args)
         t1 = time.perf_counter()
         status, msg = _cvxpy_solve(prob, options)
         timings["setup"] += t1 - t0
         timings["solve"] += time.perf_counter() - t1
         if status is not Status.CONVERGED:
-            return status, msg, _solver_stats(prob), None, None, None, None, None
-        w = element_weights(nd)
-        xi = var["xi"].value / w if var["xi"] is not None else np.zeros(nd.n_elements)
-        return (status, msg, _solver_stats(prob), var["tau"].value / w[:, None], xi, -cons["equilibrium"].dual_value,
-                -float(cons["force"].dual_value), var["lam"].value)
+            return (status, msg, _solver_stats(prob)) + (None,) * 5
+        return (status, msg, _solver_stats(prob)) + extract(nd, var, cons)
 
+    return scaled
+
+
+def _stress_answer(nd: Discretization, var, cons):
+    w = element_weights(nd)
+    xi = var["xi"].value / w if var["xi"] is not None else np.zeros(nd.n_elements)
+    return (var["tau"].value / w[:, None], xi, -cons["equilibrium"].dual_value, -float(cons["force"].dual_value),
+            var["lam"].value)
+
+
+def _displacement_answer(nd: Discretization, var, cons):
+    m, k, w = nd.material, nd.k, element_weights(nd)
+    p = var["p"].value @ deviatoric_basis(k).T / w[:, None]
+    sigma = (var["eps"].value - p) @ m.stiffness(nd.dim)
+    return (sigma, m.hardening * var["kappa"].value / w, var["v"].value, float(var["V"].value),
+            cons["contact"].dual_value)
+
+
+def solve_conic_cvxpy(disc: Discretization, options: ConicOptions = ConicOptions()) -> Solution:
+    """(S) through CVXPY. CVXPY's equality duals enter its Lagrangian with a plus
+    sign, so ``u = -y_equilibrium`` and ``U = -y_force`` as for raw Clarabel."""
+    timings: dict[str, float] = {"setup": 0.0, "solve": 0.0}
+    scaled = elastic_first(_cvxpy_scaled(stress_program, _stress_answer, options, timings))
     return _finish(disc, "conic-cvxpy", scaled, timings, options)
 
 
@@ -406,20 +425,5 @@ def solve_conic_displacement(disc: Discretization, options: ConicOptions = Conic
     """(D) through CVXPY: ``sigma = C (eps - p)``, ``xi = H kappa``, contact forces
     are the multipliers of the contact inequalities."""
     timings: dict[str, float] = {"setup": 0.0, "solve": 0.0}
-
-    def scaled(nd: Discretization):
-        t0 = time.perf_counter()
-        prob, var, cons = displacement_program(nd)
-        t1 = time.perf_counter()
-        status, msg = _cvxpy_solve(prob, options)
-        timings["setup"] += t1 - t0
-        timings["solve"] += time.perf_counter() - t1
-        if status is not Status.CONVERGED:
-            return status, msg, _solver_stats(prob), None, None, None, None, None
-        m, k, w = nd.material, nd.k, element_weights(nd)
-        p = var["p"].value @ deviatoric_basis(k).T / w[:, None]
-        sigma = (var["eps"].value - p) @ m.stiffness(nd.dim)
-        return (status, msg, _solver_stats(prob), sigma, m.hardening * var["kappa"].value / w, var["v"].value,
-                float(var["V"].value), cons["contact"].dual_value)
-
+    scaled = _cvxpy_scaled(displacement_program, _displacement_answer, options, timings)
     return _finish(disc, "conic-displacement", scaled, timings, options)

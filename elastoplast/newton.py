@@ -233,27 +233,32 @@ class SPDSolver:
     """
 
     def __init__(self, lay: HessianLayout, backend: str = "auto", threads: int | None = None):
-        if backend == "auto":
-            try:
-                import pypardiso  # noqa: F401
-
-                backend = "pardiso"
-            except ImportError:
-                backend = "splu"
-        if backend not in ("pardiso", "splu"):
-            raise ValueError(f"unknown linear solver {backend!r} (pardiso, splu)")
-        self.backend = backend
+        if backend not in ("auto", "pardiso", "splu"):
+            raise ValueError(f"unknown linear solver {backend!r} (auto, pardiso, splu)")
         self.lay = lay
         self.analysed = False
         self.matrix: sp.csr_matrix | None = None
         self.lu = None
-        if backend == "pardiso":
-            import pypardiso
+        self.backend = "splu"
+        if backend != "splu":
+            try:
+                self.pardiso = self._pardiso(threads)
+                self.backend = "pardiso"
+            except Exception:  # not installed, or its internals moved (we use private ones)
+                if backend == "pardiso":
+                    raise
 
-            os.environ.setdefault("PYPARDISO_MKL_RT", _mkl_runtime())
-            self.pardiso = pypardiso.PyPardisoSolver(mtype=2)
-            if threads is not None:
-                self.pardiso.libmkl.MKL_Set_Num_Threads(ctypes.c_int(int(threads)))
+    @staticmethod
+    def _pardiso(threads: int | None):
+        import pypardiso
+
+        os.environ.setdefault("PYPARDISO_MKL_RT", _mkl_runtime())
+        solver = pypardiso.PyPardisoSolver(mtype=2)
+        for name in ("set_iparm", "set_phase", "_call_pardiso", "free_memory"):
+            getattr(solver, name)  # fail here, not mid-solve, if pypardiso changed
+        if threads is not None:
+            solver.libmkl.MKL_Set_Num_Threads(ctypes.c_int(int(threads)))
+        return solver
 
     def factor(self, data: np.ndarray) -> None:
         n = self.lay.size

@@ -23,7 +23,6 @@
 import os
 
 import matplotlib.pyplot as plt
-import numpy as np
 
 import elastoplast as ep
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import elastoplast as ep
@@ -26,6 +27,23 @@ def sphere_quarter_dict(divisions=(6, 6, 5), **material) -> dict:
     data["mesh"]["divisions"] = list(divisions)
     data["material"].update(material)
     return data
+
+
+def energy_error(disc: ep.Discretization, a: ep.Solution, b: ep.Solution) -> float:
+    """Relative distance of ``a``'s stresses from ``b``'s in the energy norm [.,.]."""
+    from elastoplast.certificate import energy_norm_sq
+
+    return float(np.sqrt(energy_norm_sq(disc, a.sigma - b.sigma, a.xi - b.xi) / energy_norm_sq(disc, b.sigma, b.xi)))
+
+
+def assert_matches_reference(disc: ep.Discretization, sol: ep.Solution, ref: ep.Solution) -> None:
+    """The agreement issues 3 and 4 ask of every method against the conic
+    reference: U to 1e-6 relative, stresses to 1e-5 in the energy norm, the
+    same active contact nodes and the same plastic elements."""
+    assert abs(sol.U - ref.U) <= 1e-6 * abs(ref.U)
+    assert energy_error(disc, sol, ref) <= 1e-5
+    np.testing.assert_array_equal(sol.active, ref.active)
+    np.testing.assert_array_equal(sol.plastic, ref.plastic)
 
 
 def build(data: dict) -> ep.Discretization:

@@ -6,7 +6,6 @@ the field, never a traceback.
 
 from __future__ import annotations
 
-import copy
 import json
 from pathlib import Path
 

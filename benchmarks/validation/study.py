@@ -513,7 +513,7 @@ def limit_load(disc: ep.Discretization) -> dict[str, Any]:
     vol = disc.volumes / L**disc.dim
     Bs = (disc.B * L).tocsr()
     n_cols = n * k + nc + 1
-    lam_col, F_col = n * k, n * k + nc
+    F_col = n * k + nc
     BtV = (Bs.T @ sp.diags(np.repeat(vol, k))).tocsc()
     A_eq = sp.hstack([BtV, -disc.N.T, sp.csc_matrix((disc.n_free, 1))])
     A_force = sp.hstack([sp.csc_matrix((1, n * k)), sp.csc_matrix(np.ones((1, nc))), sp.csc_matrix([[-1.0]])])

@@ -7,6 +7,8 @@ the body above it (MATH.md section 1).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import itertools
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -207,7 +209,8 @@ def read_mesh(path: str | Path) -> Mesh:
     if not path.is_file():
         raise InputError("mesh.file", f"mesh file not found: {path}")
     try:
-        m = meshio.read(path)
+        with contextlib.redirect_stdout(io.StringIO()):  # meshio's gmsh reader prints a blank line
+            m = meshio.read(path)
     except Exception as exc:  # meshio raises many types; the message is what matters
         raise InputError("mesh.file", f"cannot read {path}: {exc}") from None
 

@@ -30,10 +30,13 @@ from .solution import Solution, Status, make_solution
 @dataclass(frozen=True)
 class ConicOptions:
     """Interior-point settings. ``tol`` is Clarabel's relative gap and feasibility
-    tolerance; reference runs want it tight (the displacements are dual
-    variables and only as accurate as the gap)."""
+    tolerance. Raw dual displacements are only as accurate as the gap allows;
+    with ``polish`` (default) the interior point only has to find the plastic
+    and contact sets, and Newton steps do the rest: on nine test problems
+    tol = 1e-6, 1e-8 and 1e-10 all certified at 1e-14..1e-16, 1e-8 saving 10-30%
+    of the time of 1e-10 (21.1 s -> 16.7 s on a 12.7k-tetrahedra gmsh mesh)."""
 
-    tol: float = 1e-10
+    tol: float = 1e-8
     max_iter: int = 200
     verbose: bool = False
     time_limit: float = float("inf")

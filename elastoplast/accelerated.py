@@ -55,8 +55,6 @@ from typing import Any
 
 import numpy as np
 
-import scipy.sparse as sp
-
 from .certificate import certify
 from .discretize import nondimensionalize
 from .errors import InputError
@@ -190,8 +188,7 @@ class ALG2Step:
 def alg2_setup(nd, r: float, splitting: str, factorization: str = "auto") -> ALG2Step:
     """Factor ``G_M`` once (M = I: Uzawa's metric G; M = C: the elastic stiffness K)."""
     M = splitting_metric(nd.material, nd.dim, splitting)
-    W = sp.kron(sp.diags(nd.volumes), sp.csr_matrix(M), format="csr")
-    solve = factorize_metric((nd.B.T @ W @ nd.B).tocsc(), factorization)
+    solve = factorize_metric(nd.weighted_gram(M).tocsc(), factorization)
     return ALG2Step(solve=solve, ops=contact_operators(nd.N, solve), M=M, M_inv=np.linalg.inv(M), r=r,
                     splitting=splitting)
 

@@ -90,7 +90,7 @@ class Discretization:
 
     @property
     def length_scale(self) -> float:
-        """Largest extent of the body: the length unit used for scaling."""
+        """Largest extent of the body."""
         pts = self.mesh.points
         return float(np.max(pts.max(axis=0) - pts.min(axis=0)))
 
@@ -101,6 +101,18 @@ class Discretization:
     def internal_force(self, sigma: np.ndarray) -> np.ndarray:
         """``r = sum_T |T| B_T^T sigma_T`` on the free dofs."""
         return self.B.T @ (sigma * self.volumes[:, None]).ravel()
+
+    def weighted_gram(self, M: np.ndarray) -> sp.csr_matrix:
+        """``sum_T |T| B_T^T M_T B_T`` on the free dofs, for one ``M (k, k)`` shared by
+        every element (Uzawa's metric with M = I, the elastic stiffness with M = C)
+        or one per element, ``M (n_el, k, k)`` (the tangent stiffness)."""
+        if M.ndim == 2:
+            D = sp.kron(sp.diags(self.volumes), sp.csr_matrix(M), format="csr")
+        else:
+            n = self.n_elements
+            D = sp.bsr_matrix((M * self.volumes[:, None, None], np.arange(n), np.arange(n + 1)),
+                              shape=(n * self.k, n * self.k)).tocsr()
+        return (self.B.T @ D @ self.B).tocsr()
 
     def full_displacement(self, u_free: np.ndarray) -> np.ndarray:
         """Nodal displacements ``(n_nodes, d)`` with zeros at fixed dofs."""

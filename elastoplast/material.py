@@ -75,10 +75,6 @@ class Material:
     def bulk(self) -> float:
         return self.lam + 2.0 * self.mu / 3.0
 
-    @property
-    def perfectly_plastic(self) -> bool:
-        return self.hardening == 0.0
-
     def stiffness(self, dim: int) -> np.ndarray:
         """``C = 2 mu I + lam m m^T`` acting on Mandel vectors."""
         m = identity_vector(dim)

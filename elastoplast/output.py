@@ -72,7 +72,7 @@ def write_results(out_dir: str | Path, disc: Discretization, sol: Solution, extr
         data["history"] = sol.history
     if extra:
         data.update(extra)
-    (out / "summary.json").write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
+    (out / "summary.json").write_text(json.dumps(data, indent=2, default=json_default) + "\n")
     if sol.history:
         plot_convergence(out / "convergence.png", sol.history, f"{sol.method}: {sol.status.value}")
     return data
@@ -117,7 +117,8 @@ def _positive(values: list[Any]) -> np.ndarray:
     return np.where(v > 0, v, np.nan)
 
 
-def _json_default(obj: Any) -> Any:
+def json_default(obj: Any) -> Any:
+    """JSON for numpy scalars and arrays (summary.json, the campaign store)."""
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, np.ndarray):

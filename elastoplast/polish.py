@@ -38,14 +38,6 @@ class Polished:
     converged: bool
 
 
-def tangent_stiffness(disc: Discretization, C_alg: np.ndarray) -> sp.csr_matrix:
-    """``K = sum_T |T| B_T^T C_alg,T B_T`` on the free dofs (one block-diagonal product)."""
-    n, k = disc.n_elements, disc.k
-    blocks = C_alg * disc.volumes[:, None, None]
-    D = sp.bsr_matrix((blocks, np.arange(n), np.arange(n + 1)), shape=(n * k, n * k))
-    return (disc.B.T @ D.tocsr() @ disc.B).tocsr()
-
-
 def newton_polish(
     disc: Discretization,
     u_free: np.ndarray,
@@ -69,7 +61,7 @@ def newton_polish(
             break
         sigma, _, C_alg = consistent_tangent(m, disc.strain(u))
         r = disc.internal_force(sigma)
-        K = tangent_stiffness(disc, C_alg)
+        K = disc.weighted_gram(C_alg)
         NA = disc.N[active]
         na = NA.shape[0]
         ones = sp.csr_matrix(np.ones((1, na)))

@@ -195,9 +195,9 @@ def atomic_write(path: str | Path, data: bytes) -> None:
 
 
 def _json_bytes(data: Any) -> bytes:
-    from .output import _json_default  # numpy scalars and arrays, as in summary.json
+    from .output import json_default  # numpy scalars and arrays, as in summary.json
 
-    return (json.dumps(data, indent=2, default=_json_default) + "\n").encode()
+    return (json.dumps(data, indent=2, default=json_default) + "\n").encode()
 
 
 def _npz_bytes(arrays: Mapping[str, np.ndarray]) -> bytes:

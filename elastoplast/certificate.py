@@ -8,6 +8,7 @@ same check applies to every solver.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -51,7 +52,9 @@ class KKTResiduals:
 
     @property
     def worst(self) -> float:
-        return max(self.as_dict().values())
+        """The largest residual; NaN if any residual is NaN (a NaN is never "small")."""
+        values = list(self.as_dict().values())
+        return math.nan if any(math.isnan(v) for v in values) else max(values)
 
     def as_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in asdict(self).items()}

@@ -312,7 +312,7 @@ def problem_from_dict(data: Mapping, base_dir: str | Path = ".") -> Problem:
     """Build a :class:`Problem` from the nested structure of the TOML format.
 
     The optional ``[solver]`` table is not part of the problem; it is ignored here
-    and read by :func:`solver_settings`.
+    and read by :func:`elastoplast.solvers.solver_settings`.
     """
     _only(data, SECTIONS, "problem")
     for name in ("mesh", "material", "obstacle", "load"):
@@ -328,37 +328,6 @@ def problem_from_dict(data: Mapping, base_dir: str | Path = ".") -> Problem:
     if not force > 0:
         raise InputError("load.force", f"must be > 0, got {force!r}")
     return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle, force=force)
-
-
-SOLVER_KEYS = ("method", "tol", "max_iter", "rho")
-DEFAULT_METHOD = "conic"
-
-
-def solver_settings(section: Mapping[str, Any], prefix: str = "solver") -> tuple[str, dict[str, Any]]:
-    """``(method, options)`` from a ``[solver]`` table; the method must be registered now."""
-    from .solvers import METHODS
-
-    if not isinstance(section, Mapping):
-        raise InputError(prefix, f"must be a table, got {section!r}")
-    unknown = sorted(set(section) - set(SOLVER_KEYS))
-    if unknown:
-        raise InputError(f"{prefix}.{unknown[0]}", f"unknown key (allowed: {list(SOLVER_KEYS)})")
-    method = section.get("method", DEFAULT_METHOD)
-    if method not in METHODS:
-        raise InputError(f"{prefix}.method", f"unknown method {method!r} (choose from {sorted(METHODS)})")
-    options: dict[str, Any] = {}
-    for key in ("tol", "rho"):
-        if key in section:
-            val = section[key]
-            if isinstance(val, bool) or not isinstance(val, (int, float)) or not (math.isfinite(val) and val > 0):
-                raise InputError(f"{prefix}.{key}", f"must be a finite number > 0, got {val!r}")
-            options[key] = float(val)
-    if "max_iter" in section:
-        val = section["max_iter"]
-        if isinstance(val, bool) or not isinstance(val, int) or val < 1:
-            raise InputError(f"{prefix}.max_iter", f"must be an integer >= 1, got {val!r}")
-        options["max_iter"] = val
-    return method, options
 
 
 def read_toml(path: str | Path) -> dict:

@@ -69,7 +69,7 @@ def test_forms_agree_before_polishing(solved):
     name, disc, _ = solved
     if "perfect" in name:
         pytest.skip("with H = 0 the displacements need not be unique")
-    raw = ConicOptions(polish=False, tol=1e-12)
+    raw = ConicOptions(polish=False, ip_tol=1e-12)
     s = ep.solve_conic(disc, raw)
     d = ep.solve_conic_displacement(disc, raw)
     assert d.U == pytest.approx(s.U, rel=1e-6)

@@ -153,10 +153,15 @@ def test_divergence_test_stops_the_run():
     assert sol.status is ep.Status.DIVERGED
 
 
-def test_unknown_options_are_ignored():
+def test_options_of_other_methods_are_refused():
+    """Issue 9: an option the method does not have is an error naming it, never ignored."""
     disc = small("sphere_quarter_3d")
-    sol = ep.solve(disc, "uzawa", tol=1e-6, max_iter=2000, progress=False, threads=3, verbose=True)
-    assert sol.converged
+    with pytest.raises(ep.InputError) as exc:
+        ep.solve(disc, "uzawa", tol=1e-6, max_iter=2000, threads=3)
+    assert exc.value.field == "threads"
+    with pytest.raises(ep.InputError) as exc:
+        ep.solve(disc, "newton", rho=1e-6)
+    assert exc.value.field == "rho"
 
 
 def test_warm_start_same_answer_fewer_iterations():

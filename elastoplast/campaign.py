@@ -58,7 +58,7 @@ import numpy as np
 from .errors import InputError
 from .output import json_text
 from .problem import SECTIONS, problem_from_dict, read_toml
-from .solvers import solver_settings
+from .solvers import check_solvable, method_options, solver_settings
 from .store import ERROR, ResolvedInput, Store, atomic_write, case_record, content_hash, rebuild_problem, resolve
 
 
@@ -173,7 +173,7 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
 
     cases: dict[str, Case] = {}
     meshes: dict[str, dict] = {}  # one copy of each distinct mesh
-    checked: set[str] = set()
+    checked: dict[str, Any] = {}  # problem id -> its discretisation (the last few, for the checks)
     n_points = 0
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -190,9 +190,16 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
                 mesh_key = content_hash({}, inp.arrays)
                 inp = ResolvedInput(spec=inp.spec, arrays=meshes.setdefault(mesh_key, dict(inp.arrays)))
                 problem_id = inp.problem_id
-                if problem_id not in checked:
-                    discretize(problem)
-                    checked.add(problem_id)
+                disc = checked.pop(problem_id, None) or discretize(problem)
+                checked[problem_id] = disc
+                while len(checked) > 8:  # bounded memory for long sweeps
+                    checked.pop(next(iter(checked)))
+                opts = method_options(method, options)
+                try:
+                    check_solvable(disc, method, opts)
+                except InputError as exc:  # an option that does not suit the problem: name it as written
+                    field = f"solver.{exc.field}" if exc.field in opts.specs() else exc.field
+                    raise InputError(field, exc.message) from None
             except InputError as exc:
                 raise _blame(exc, point) from None
             case_id = inp.case_id

@@ -101,8 +101,12 @@ def check_output_dir(out_dir: str | Path, field: str = "out") -> Path:
     ancestor = out.parent
     while not ancestor.exists():
         ancestor = ancestor.parent
-    if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
-        raise InputError(field, f"cannot create {out_dir}: {ancestor} is not a writable folder")
+    if not ancestor.is_dir():
+        raise InputError(field, f"cannot create {out_dir}: {ancestor} is not a folder")
+    try:  # the only sure test of writability is to write
+        os.rmdir(tempfile.mkdtemp(prefix=".elastoplast-probe-", dir=ancestor))
+    except OSError as exc:
+        raise InputError(field, f"cannot create {out_dir}: {ancestor} is not writable ({exc.strerror})") from None
     return out
 
 

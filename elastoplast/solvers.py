@@ -21,7 +21,7 @@ from .errors import InputError
 from .newton import NewtonOptions, solve_newton
 from .options import SolverOptions
 from .solution import Solution
-from .uzawa import UzawaOptions, solve_uzawa
+from .uzawa import UzawaOptions, check_rho, solve_uzawa
 
 
 @dataclass(frozen=True)
@@ -32,13 +32,20 @@ class Method:
     run: Callable[[Discretization, SolverOptions], Solution]
     options: type[SolverOptions]
     summary: str
+    #: checks of the options that depend on the problem (e.g. Uzawa's step against the material)
+    check: Callable[[Discretization, SolverOptions], None] | None = None
+
+
+def _check_uzawa(disc: Discretization, options: SolverOptions) -> None:
+    if options.rho is not None:
+        check_rho(options.rho, disc.material)
 
 
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("conic", solve_conic, ConicOptions, "stress form (S) assembled for Clarabel, Newton-polished"),
     Method("conic-cvxpy", solve_conic_cvxpy, ConicOptions, "the same model written in CVXPY"),
     Method("conic-displacement", solve_conic_displacement, ConicOptions, "displacement form (D) in CVXPY"),
-    Method("uzawa", solve_uzawa, UzawaOptions, "the paper's Uzawa iteration"),
+    Method("uzawa", solve_uzawa, UzawaOptions, "the paper's Uzawa iteration", _check_uzawa),
     Method("uzawa-fast", solve_accelerated, FastOptions, "FISTA with restart (or ALG2) on Uzawa's steps"),
     Method("newton", solve_newton, NewtonOptions, "projected semismooth Newton on (D)"),
 )}
@@ -58,8 +65,9 @@ CONIC_MAX_ELEMENTS = {2: 400_000, 3: 150_000}
 MAX_PRESSURE_OVER_E = 1e3
 
 
-def check_solvable(disc: Discretization, method: str) -> None:
-    """Refuse, before any work, a problem ``method`` cannot answer faithfully."""
+def check_solvable(disc: Discretization, method: str, options: SolverOptions | None = None) -> None:
+    """Refuse, before any work, a problem ``method`` cannot answer faithfully
+    (with ``options``, also options that do not suit the problem)."""
     area = float(disc.contact_area.sum())
     if area > 0 and disc.force / area > MAX_PRESSURE_OVER_E * disc.material.E:
         raise InputError("load.force", f"{disc.force:g} over the contact zone's area {area:g} is a mean pressure of "
@@ -70,6 +78,9 @@ def check_solvable(disc: Discretization, method: str) -> None:
         fast = [m for m in METHODS if not m.startswith("conic")]
         raise InputError("method", f"{disc.n_elements:,} elements is beyond what the conic reference can finish "
                                    f"here (at most {limit:,} in {disc.dim}D); use one of {fast}")
+    m = get_method(method)
+    if options is not None and m.check is not None:
+        m.check(disc, options)
 
 
 def get_method(name: Any, field: str = "method") -> Method:
@@ -110,5 +121,5 @@ def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOpt
         raise InputError("options", "give an options object or keyword options, not both")
     m = get_method(method)
     opts = method_options(method, options if options is not None else values)
-    check_solvable(disc, m.name)
+    check_solvable(disc, m.name, opts)
     return m.run(disc, opts)

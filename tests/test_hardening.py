@@ -288,3 +288,17 @@ def test_absurd_force_is_refused(problem_file, tmp_path, capsys):
     data["load"]["force"] = 1e300
     code, line = run(capsys, "solve", write_toml(tmp_path / "f.toml", data), "--quiet", "--out", tmp_path / "o")
     assert code == 2 and line.startswith("error: load.force:"), line
+
+
+def test_campaign_checks_problem_dependent_options_before_running(tmp_path):
+    """Uzawa's step must lie below 2 / lambda_max(C) of the material: a campaign point
+    beyond it is refused when the campaign is loaded, naming the axis."""
+    from elastoplast.campaign import load_campaign
+
+    path = tmp_path / "c.toml"
+    path.write_text(f'[campaign]\nproblem = "{PROBLEMS / "cylinder_2d.toml"}"\n[mesh]\ndivisions = [20, 10]\n'
+                    '[sweep]\nmethod = ["uzawa"]\n"solver.rho" = [1e-6, 1.0]\n'
+                    '"material.hardening" = [10000.0]\n"load.force" = [1000.0]\n')
+    with pytest.raises(ep.InputError) as exc:
+        load_campaign(path)
+    assert exc.value.field == "sweep.solver.rho" and "1.0" in exc.value.message

@@ -85,6 +85,16 @@ def contact_forces(disc: Discretization, sigma: np.ndarray) -> np.ndarray:
     return disc.N @ disc.internal_force(sigma)
 
 
+def _shaped(a, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``a`` as a float array of ``shape`` (the same number of entries in any layout)."""
+    from .errors import InputError
+
+    arr = np.asarray(a, dtype=float)
+    if arr.size != int(np.prod(shape)):
+        raise InputError(name, f"expected {int(np.prod(shape))} values {shape}, got {arr.size} {arr.shape}")
+    return arr.reshape(shape)
+
+
 def certify(
     disc: Discretization,
     sigma: np.ndarray,
@@ -98,9 +108,9 @@ def certify(
     The candidate's origin does not matter: no solver output other than these
     arrays is used.
     """
-    sigma = np.asarray(sigma, dtype=float).reshape(disc.n_elements, disc.k)
-    xi = np.asarray(xi, dtype=float).reshape(disc.n_elements)
-    u_all = np.asarray(u, dtype=float).reshape(-1)
+    sigma = _shaped(sigma, (disc.n_elements, disc.k), "sigma")
+    xi = _shaped(xi, (disc.n_elements,), "xi")
+    u_all = _shaped(u, (disc.mesh.n_nodes, disc.dim), "u").reshape(-1)
     u_free = u_all[disc.free]
     F = disc.force
 
@@ -112,7 +122,7 @@ def certify(
     constitutive_max = np.sqrt(diff.max() / max(ref.max(), tiny))
 
     r = disc.internal_force(sigma)
-    lam = disc.N @ r if contact_force is None else np.asarray(contact_force, dtype=float)
+    lam = disc.N @ r if contact_force is None else _shaped(contact_force, (disc.n_contact,), "contact_force")
     magnitude = abs(disc.B.T) @ np.abs(sigma * disc.volumes[:, None]).ravel()
     res = r - disc.N.T @ lam
     equilibrium = np.linalg.norm(res) / max(np.linalg.norm(magnitude), np.finfo(float).tiny)

@@ -117,6 +117,8 @@ def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOpt
           **values: Any) -> Solution:
     """Solve (2.1) by ``method`` (a key of :data:`METHODS`), with options given
     either as an options object or as keywords (not both)."""
+    if not isinstance(disc, Discretization):
+        raise InputError("disc", f"expected a Discretization (ep.discretize(problem)), got {type(disc).__name__}")
     if options is not None and values:
         raise InputError("options", "give an options object or keyword options, not both")
     m = get_method(method)

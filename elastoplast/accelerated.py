@@ -16,7 +16,7 @@ gradient-mapping test of O'Donoghue & Candes (2015)
 points uphill. The restart recovers the linear rate of strongly convex
 problems (H > 0) with a better constant; without it FISTA oscillates.
 
-The iteration stops on the certificate of MATH.md section 6 at the candidate
+The iteration stops on the certificate of docs/certificate.md at the candidate
 ``(R(eps(x^k)), x^k)``, like plain Uzawa.
 
 ALG2 (Fortin & Glowinski), ``FastOptions(variant="alg2")``, splits ``q = eps(v)``

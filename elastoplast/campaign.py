@@ -461,7 +461,7 @@ def solution_errors(disc, sol, ref) -> dict[str, float]:
 
     * ``U_rel = |U - U_ref| / |U_ref|``;
     * ``sigma_rel = sqrt([s - s_ref, s - s_ref] / [s_ref, s_ref])`` in the energy
-      inner product of MATH.md section 2 (``s = (sigma, xi)``; the xi part is
+      inner product of docs/math.md (``s = (sigma, xi)``; the xi part is
       dropped when H = 0);
     * ``time_ratio = time / time_ref`` (each solver's own ``timings['total']``).
     """

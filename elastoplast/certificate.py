@@ -1,4 +1,4 @@
-"""Solver-independent KKT certificate of (2.1) (MATH.md section 6).
+"""Solver-independent KKT certificate of (2.1) (docs/certificate.md).
 
 :func:`certify` takes any candidate ``(sigma, xi, u, U)`` (and optionally the
 contact forces the solver claims) and measures how far it is from the discrete
@@ -32,8 +32,8 @@ class KKTResiduals:
       ``|tau_hat|_e^2 = tau A tau + eta^2 / H``. The global norm dilutes an
       error confined to one element; this one does not;
     * ``equilibrium``: ``||r - N^T lam||_2 / ||s||_2`` over the free dofs, where
-      ``s`` sums the magnitudes ``| |T| B_T^T sigma_T |`` of the element
-      contributions at each dof;
+      ``s = |B|^T |sigma |T||`` sums, at each dof, the magnitudes of every
+      single term (element and stress component) that enters ``r`` there;
     * ``force_balance``: ``|sum lam - F| / F``;
     * ``sign``: ``sum max(-lam, 0) / F``;
     * ``penetration``: ``max(-g, 0).max() / delta``;

@@ -1,4 +1,4 @@
-"""The discrete problem (2.1) as conic programs, solved by Clarabel (MATH.md section 5).
+"""The discrete problem (2.1) as conic programs, solved by Clarabel (docs/math.md).
 
 * Stress form (S): minimise ``1/2 [tau_hat, tau_hat] + psi . lam`` over element
   stresses, hardening stresses and contact forces, subject to equilibrium, the

@@ -3,7 +3,7 @@
 Uzawa, FISTA, ALG2 and Newton differ in how they produce the next candidate
 ``(sigma, xi, u, U)``; they agree on everything else, which lives here once:
 
-* the candidate is judged by the certificate of MATH.md section 6
+* the candidate is judged by the certificate of docs/certificate.md
   (:func:`~elastoplast.certificate.certify`), never by a step length;
 * the stopping rule (:meth:`Monitor.check`), in this order: non-finite values
   -> DIVERGED; every residual ``<= tol`` -> CONVERGED; the worst residual

@@ -26,7 +26,7 @@ columns are replaced by their diagonal), so the sparse factorisation's
 symbolic analysis is done once; with PARDISO a stale factorisation also serves
 as a preconditioner for conjugate gradients while that is cheaper than
 refactorising (:class:`NewtonOptions`). Every iterate is judged by the KKT
-certificate of MATH.md section 6.
+certificate of docs/certificate.md.
 """
 
 from __future__ import annotations

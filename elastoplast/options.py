@@ -106,7 +106,7 @@ class SolverOptions:
     """Options every method has.
 
     ``tol``: the answer is CONVERGED only when every relative residual of the
-    KKT certificate (MATH.md section 6) is at most ``tol``; ``max_iter`` and
+    KKT certificate (docs/certificate.md) is at most ``tol``; ``max_iter`` and
     ``time_limit`` bound the run; ``progress`` reports on stderr.
     """
 

@@ -70,7 +70,7 @@ def _compile_expression(expr: str, dim: int, fieldname: str):
 
 @dataclass(frozen=True)
 class Obstacle:
-    """Rigid body surface ``x_d = -psi(x')`` (MATH.md section 1).
+    """Rigid body surface ``x_d = -psi(x')`` (docs/math.md).
 
     ``shape``: ``sphere`` (3D) / ``cylinder`` (2D): ``R - sqrt(R^2 - |x'-c|^2)``;
     ``paraboloid``: ``|x'-c|^2 / (2R)``; ``flat``: 0; ``expression``: a formula
@@ -115,7 +115,7 @@ class Obstacle:
 
 @dataclass(frozen=True)
 class Problem:
-    """A complete elasto-plastic contact problem (MATH.md sections 1-2)."""
+    """A complete elasto-plastic contact problem (docs/math.md)."""
 
     mesh: Mesh
     material: Material

@@ -1,4 +1,4 @@
-"""Uzawa's method of the paper (MATH.md section 7): two projections per iteration.
+"""Uzawa's method of the paper (docs/methods.md): two projections per iteration.
 
 Starting from ``(u^0, U^0)`` in K_h, iteration n does
 
@@ -10,7 +10,7 @@ Starting from ``(u^0, U^0)`` in K_h, iteration n does
   (plus 1 for V). G is factored once (:func:`factorize_metric`); the
   projection is a small QP in the contact multipliers (:func:`solve_contact_qp`).
 
-The iteration stops on the KKT residuals of the certificate (MATH.md section 6)
+The iteration stops on the KKT residuals of the certificate (docs/certificate.md)
 evaluated at the candidate ``(R(eps(u^n)), u^n, U^n)``, never on the step length.
 Every function works on plain arrays and a factor so that accelerated variants
 can reuse the steps. The loop runs in the O(1) units of
@@ -45,12 +45,12 @@ Solve = Callable[[np.ndarray], np.ndarray]
 
 
 def rho_bound(material: Material) -> float:
-    """The paper's convergence bound ``2 / lambda_max(C)`` (MATH.md section 7)."""
+    """The paper's convergence bound ``2 / lambda_max(C)`` (docs/methods.md)."""
     return 2.0 / material.max_stiffness_eigenvalue()
 
 
 #: default step as a share of the bound 2 / lambda_max(C); the rho sweep of
-#: benchmarks/uzawa (RESULTS.md) found the iteration count falling monotonically
+#: benchmarks/uzawa (REPORT.md) found the iteration count falling monotonically
 #: up to the bound, on 2D and 3D problems, elastic-dominated and plastic alike
 DEFAULT_RHO_SHARE = 0.95
 
@@ -67,7 +67,7 @@ def check_rho(rho: float, material: Material, field: str = "rho") -> float:
         raise InputError(
             field,
             f"must lie in (0, 2/lambda_max(C)) = (0, {bound:.6g}) for Uzawa to converge "
-            f"(lambda_max(C) = E/(1-2nu) = {material.max_stiffness_eigenvalue():.6g}); got {rho!r}",
+            f"(lambda_max(C) = max(3K, 2mu) = {material.max_stiffness_eigenvalue():.6g}); got {rho!r}",
         )
     return float(rho)
 
@@ -137,7 +137,7 @@ FACTORIZATIONS: dict[str, Callable[[sp.spmatrix], Solve]] = {
     "pypardiso": _factor_pypardiso,
     "qdldl": _factor_qdldl,
 }
-#: "auto" choice, measured in benchmarks/uzawa/components.json: on the 3D sphere with
+#: "auto" choice, measured in benchmarks/uzawa/components.md: on the 3D sphere with
 #: 52,728 tetrahedra (G: 24,375 rows, 958k nonzeros) PARDISO factors 3-6x faster than
 #: SuperLU and CHOLMOD (cholespy), which decides the setup; below about half a million
 #: nonzeros cholespy is the fastest and PARDISO's fixed cost (0.3-2 s to locate and start
@@ -217,7 +217,7 @@ def contact_operators(N: sp.spmatrix, solve: Solve, weight: float | None = None)
     carry different units (length^3 against length^2), so the weight of V is
     a choice. ``weight=None`` takes ``1 / w = 10 trace(N G^{-1} N^T)``: V then
     costs nothing next to the contact displacements, which the measured sweep
-    (benchmarks/uzawa/RESULTS.md) found fastest, on a plateau reached a decade
+    (benchmarks/uzawa/weight.md) found fastest, on a plateau reached a decade
     earlier; a weight of 1 in the problem's units is the paper's literal metric.
     """
     Z = solve(N.T.toarray())
@@ -240,7 +240,7 @@ def project_stresses(material: Material, eps: np.ndarray) -> tuple[np.ndarray, n
     """Step (i): ``sigma_hat^{n+1} = R(eps(u^n))`` element by element.
 
     R is the closed-form projection of ``(C eps, 0)`` onto the admissible set D
-    in the energy metric (MATH.md section 6); ``eps`` has shape ``(n_el, k)``.
+    in the energy metric (docs/certificate.md); ``eps`` has shape ``(n_el, k)``.
     """
     sigma, xi, _ = return_mapping(material, eps)
     return sigma, xi
@@ -361,7 +361,7 @@ def _check_interval(options: UzawaOptions, t_certificate: float, t_iteration: fl
 
 
 def solve_uzawa(disc: Discretization, options: UzawaOptions = UzawaOptions()) -> Solution:
-    """Uzawa's method (MATH.md section 7) with the certificate as stopping test.
+    """Uzawa's method (docs/methods.md) with the certificate as stopping test.
 
     Iteration n evaluates step (i) at ``u^n``; the certificate is evaluated at
     the candidate ``(R(eps(u^n)), u^n, U^n)`` (whose constitutive residual is

@@ -10,6 +10,7 @@ import shutil
 
 import elastoplast.cli as cli
 from elastoplast.cli import main
+from elastoplast.output import OUTPUT_MARKER
 from elastoplast.problem import read_toml
 
 from conftest import ROOT
@@ -55,7 +56,7 @@ def test_first_command_writes_into_the_working_directory_only(tmp_path, monkeypa
     after = repository_files()
     assert sorted(set(after) - set(before)) == []  # no new file
     assert sorted(p for p in before if after.get(p) != before[p]) == []  # none rewritten
-    assert {p.name for p in (tmp_path / "results").iterdir()} == {"solution.vtu", "summary.json"}
+    assert {p.name for p in (tmp_path / "results").iterdir()} == {"solution.vtu", "summary.json", OUTPUT_MARKER}
 
 
 def test_python_blocks_run(tmp_path):

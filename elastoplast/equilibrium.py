@@ -1,7 +1,7 @@
-"""Certified lower bounds on the continuous problem: the equilibrium element (MATH.md §9-10).
+"""Certified lower bounds on the continuous problem: the equilibrium element (docs/bounds.md).
 
 A statically and plastically admissible field ``(tau, eta, lam)`` of the continuous
-problem gives ``-J(tau, eta, lam) <= Pi*`` (weak duality, MATH.md §9), with
+problem gives ``-J(tau, eta, lam) <= Pi*`` (weak duality, docs/bounds.md), with
 
     J = 1/2 int_Omega (A tau : tau + eta^2 / H) + int_Gamma0 lam psi.
 
@@ -39,7 +39,7 @@ linear equality rows, ``lam >= 0`` kept exactly, yield restored vertex by vertex
 is then evaluated exactly (:func:`dual_energy`), and an independent admissibility
 check (:func:`certify_static`) must pass for the bound to be reported as guaranteed.
 
-Limit mode (H = 0, MATH.md §10): :func:`static_limit_load` maximises F over the same
+Limit mode (H = 0, docs/bounds.md): :func:`static_limit_load` maximises F over the same
 constraints with eta = 0; a certified answer is ``F_lower <= F_c``.
 """
 
@@ -51,6 +51,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
+from .options import TIGHTEST_TOL, SolverOptions, option
 from .conic import _CLARABEL_STATUS, ConicOptions, clarabel_settings, elastic_first, yield_cone_rows
 from .discretize import _STRAIN_ROWS, Discretization, Units, _element_geometry, nondimensionalize
 from .errors import InputError
@@ -422,7 +423,7 @@ def _vmax(a: np.ndarray) -> float:
 
 
 def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIFY_TOL) -> StaticCertificate:
-    """Check that ``field`` is statically and plastically admissible (MATH.md §9).
+    """Check that ``field`` is statically and plastically admissible (docs/bounds.md).
 
     Uses only the mesh, the facet groups, the material and the field: facet normals
     and measures come from edge vectors (:func:`outward_normals`), not from the
@@ -491,27 +492,30 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
 
 
 @dataclass(frozen=True)
-class LowerBoundOptions:
-    """Settings of the lower-bound programs.
+class LowerBoundOptions(SolverOptions):
+    """Settings of the lower-bound programs (declared and checked like every
+    solver's options, :mod:`elastoplast.options`).
 
-    ``tol``, ``max_iter``, ``verbose``, ``time_limit``, ``linear_solver``: Clarabel's, as
-    in :class:`~elastoplast.conic.ConicOptions` (``"auto"``: see :data:`FAER_FROM_ELEMENTS_3D`). ``yield_margin``: with H = 0 the
-    energy program is solved with the yield stress ``(1 - yield_margin) sigma_y``, so
-    that the repair's correction (of the size of the solver's residuals) cannot push a
-    vertex outside the true yield surface; the bound is still valid for sigma_y and
-    is weaker by about ``yield_margin`` relative. ``certify_tol``: see
-    :func:`certify_static`. ``psi_subdivisions``: pieces per facet edge for the
-    interval enclosure of an ``expression`` obstacle.
+    ``tol``: the admissibility certificate's tolerance (:func:`certify_static`);
+    ``ip_tol``, ``max_iter``, ``verbose``, ``time_limit``, ``linear_solver``:
+    Clarabel's, as in :class:`~elastoplast.conic.ConicOptions` (``"auto"``: see
+    :data:`FAER_FROM_ELEMENTS_3D`). ``yield_margin``: with H = 0 the energy
+    program is solved with the yield stress ``(1 - yield_margin) sigma_y``, so
+    that the repair's correction (of the size of the solver's residuals) cannot
+    push a vertex outside the true yield surface; the bound is still valid for
+    sigma_y and is weaker by about ``yield_margin`` relative.
+    ``psi_subdivisions``: pieces per facet edge for the interval enclosure of an
+    ``expression`` obstacle.
     """
 
-    tol: float = 1e-9
-    max_iter: int = 200
-    verbose: bool = False
-    time_limit: float = float("inf")
-    linear_solver: str = "auto"
-    yield_margin: float = 1e-8
-    certify_tol: float = CERTIFY_TOL
-    psi_subdivisions: int = 4
+    tol: float = option(CERTIFY_TOL, float, "tolerance of the admissibility certificate", lo=TIGHTEST_TOL, hi=1e-8)
+    max_iter: int = option(200, int, "interior-point iteration limit", lo=1, hi=10_000)
+    ip_tol: float = option(1e-9, float, "Clarabel's gap and feasibility tolerance", lo=1e-14, hi=1e-3)
+    verbose: bool = option(False, bool, "Clarabel's own iteration log (on stdout)", persist=False)
+    linear_solver: str = option("auto", str, "Clarabel's KKT factorisation", choices=("auto", "qdldl", "faer"))
+    yield_margin: float = option(1e-8, float, "H = 0: relative margin below the yield stress", lo=0.0, hi=1e-2)
+    psi_subdivisions: int = option(4, int, "expression obstacles: pieces per facet edge of the enclosure", lo=1,
+                                   hi=64)
 
 
 #: 3D meshes from this many elements use Clarabel's faer factorisation, smaller ones and
@@ -832,7 +836,7 @@ def _setup(disc: Discretization, options: LowerBoundOptions, force: float | None
 def _clarabel(prog: Program, options: LowerBoundOptions, solver: str = "qdldl"):
     import clarabel
 
-    conic = ConicOptions(tol=options.tol, max_iter=options.max_iter, verbose=options.verbose,
+    conic = ConicOptions(ip_tol=options.ip_tol, max_iter=options.max_iter, verbose=options.verbose,
                          time_limit=options.time_limit)
     res = clarabel.DefaultSolver(prog.P, prog.q, prog.A, prog.b, prog.cones, clarabel_settings(conic, solver)).solve()
     raw = str(res.status).split(".")[-1]
@@ -911,7 +915,7 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
     field, resid, zeroed = _repaired_field(disc, s, prog, x)
     timings["repair"] = time.perf_counter() - t1
     t1 = time.perf_counter()
-    cert = certify_static(disc, field, options.certify_tol)
+    cert = certify_static(disc, field, options.tol)
     local = local_terms(disc, field, s.psi, s.topo)
     J = float(local.element_energy.sum() + local.facet_psi_work.sum())
     timings["certify"] = time.perf_counter() - t1
@@ -930,7 +934,7 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
 
 
 def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBoundOptions()) -> LimitLowerBound:
-    """Maximise F over the equilibrium element with eta = 0 (MATH.md §10).
+    """Maximise F over the equilibrium element with eta = 0 (docs/bounds.md).
 
     The program is solved in units where the stress unit is sigma_y. Repair: with F
     held at the solver's value, the projection of :func:`repair_static`; then the
@@ -967,7 +971,7 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     scale = min(1.0, m.yield_stress / vm.max(initial=0.0)) if vm.max(initial=0.0) > 0 else 1.0
     field = replace(field, tau=field.tau * scale, lam=field.lam * scale, force=F * scale)
     timings["repair"] = time.perf_counter() - t1
-    cert = certify_static(disc.with_force(field.force), field, options.certify_tol)
+    cert = certify_static(disc.with_force(field.force), field, options.tol)
     timings["total"] = time.perf_counter() - t0
     msg = f"Clarabel: {raw}; repair residual {resid:.1e}, yield scaling 1 - {1 - scale:.1e}"
     if not cert.passed:

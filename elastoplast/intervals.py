@@ -1,4 +1,4 @@
-"""Rigorous interval enclosures of a user-given obstacle expression (MATH.md §9).
+"""Rigorous interval enclosures of a user-given obstacle expression (docs/bounds.md).
 
 The lower bound needs ``int_f lam psi`` over-estimated on every contact facet. For
 ``shape = "expression"`` nothing is known about convexity, so psi is enclosed by

@@ -1,9 +1,9 @@
-"""The certified lower bound -J <= Pi* of the equilibrium element (MATH.md §9-10).
+"""The certified lower bound -J <= Pi* of the equilibrium element (docs/bounds.md).
 
 Where the numbers come from:
 * patch tests: the uniaxial-strain closed form of tests/test_patch.py (a uniform
   stress lies in the equilibrium element, so its optimum is the continuum optimum);
-* lower <= value_D: weak duality of MATH.md §9 with the P1 interpolant of psi. For
+* lower <= value_D: weak duality of docs/bounds.md with the P1 interpolant of psi. For
   (v, V) in K_h (non-penetration at the nodes) and P1 v, ``v_d - V + I_h psi`` is
   linear on each contact facet and >= 0 at its vertices, so ``int lam (v_d - V +
   I_h psi) >= 0`` for lam >= 0, and Pi(u_h, U_h) = value_D >= -J holds even for
@@ -34,7 +34,7 @@ from elastoplast.mesh import _boundary_facets
 
 def closed_form_energy(dim: int, F: float, m: ep.Material) -> tuple[float, float]:
     """``(J*, Pi*)`` of the uniaxial-strain patch: J* = 1/2 |Omega| (sigma A sigma + xi^2/H)
-    and Pi* = |Omega| W(eps) - F U with W from the return mapping (MATH.md §9)."""
+    and Pi* = |Omega| W(eps) - F U with W from the return mapping (docs/bounds.md)."""
     A_bottom, height = (3.0, 2.0) if dim == 2 else (6.0, 2.0)
     e, _ = uniaxial_strain(F / A_bottom, m)
     eps = np.zeros((1, ep.material.n_components(dim)))
@@ -68,7 +68,7 @@ def test_patch_lower_bound_is_the_closed_form(dim, stress_ratio):
     assert lb.element_energy.sum() + lb.local.facet_psi_work.sum() == pytest.approx(lb.J, rel=1e-14)
     assert lb.local.facet_force.sum() == pytest.approx(F, rel=1e-13)
     # the field is the uniform stress, axial -F/A at every vertex, to the accuracy that
-    # an energy gap g allows: ||sigma - tau|| <= sqrt(2 g) (MATH.md §9), g ~ 1e-12 J here
+    # an energy gap g allows: ||sigma - tau|| <= sqrt(2 g) (docs/bounds.md), g ~ 1e-12 J here
     assert np.allclose(lb.field.tau[..., dim - 1], -F / (3.0 if dim == 2 else 6.0), rtol=1e-5)
 
 

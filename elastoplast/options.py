@@ -91,7 +91,10 @@ def check_value(name: str, value: Any, spec: Spec) -> Any:
     elif spec.kind is float:
         if not isinstance(value, (int, float)):
             raise bad
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:  # an integer beyond any float
+            raise bad from None
         if not math.isfinite(value):
             raise bad
     if spec.lo is not None and (value < spec.lo or (spec.lo_open and value == spec.lo)):

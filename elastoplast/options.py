@@ -66,13 +66,19 @@ def _describe(spec: Spec) -> str:
     return what + (" (or none)" if spec.none else "")
 
 
+def short_repr(value: Any, width: int = 60) -> str:
+    """``repr(value)`` cut to ``width`` characters, so that a message stays one short line."""
+    text = repr(value)
+    return text if len(text) <= width else text[: width - 3] + "..."
+
+
 def check_value(name: str, value: Any, spec: Spec) -> Any:
     """``value`` converted to the field's kind, or an InputError naming ``name``."""
     if value is None and spec.none:
         return None
     if spec.kind is object:
         return value
-    bad = InputError(name, f"must be {_describe(spec)}, got {value!r}")
+    bad = InputError(name, f"must be {_describe(spec)}, got {short_repr(value)}")
     if spec.kind is bool:
         if not isinstance(value, bool):
             raise bad

@@ -41,15 +41,34 @@ def problem_dict(dim: int, divisions: list[int]) -> dict:
             "material": {"E": 2e5, "nu": 0.3, "yield_stress": 1500.0, "hardening": 1e4}}
 
 
+def _status_kib(key: str) -> int:
+    with open("/proc/self/status") as fh:
+        return int(next(line.split()[1] for line in fh if line.startswith(key + ":")))
+
+
+def reset_peak() -> int:
+    """Reset the peak RSS to the current RSS (Linux: ``echo 5 > /proc/self/clear_refs``)
+    and return it in bytes; without /proc, the peak so far (``getrusage``)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return _status_kib("VmRSS") * 1024
+    except OSError:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
 def peak_rss() -> int:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    try:
+        return _status_kib("VmHWM") * 1024
+    except OSError:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
 def worker_build(dim: int, divisions: list[int]) -> dict:
     import elastoplast as ep
     from elastoplast.checks import discretization_bytes, structured_counts
 
-    before = peak_rss()
+    before = reset_peak()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         disc = ep.discretize(ep.problem_from_dict(problem_dict(dim, divisions)))
@@ -59,28 +78,33 @@ def worker_build(dim: int, divisions: list[int]) -> dict:
             "measured_bytes": measured, "estimate_bytes": estimate, "ratio": measured / estimate}
 
 
-def worker_read(path: str) -> dict:
-    """meshio's peak: the peak RSS increase, and the peak of traced allocations
-    (tracemalloc sees every NumPy buffer, also those allocated and never touched, such
-    as ``np.fromfile(count=...)`` over-allocations, which RSS does not)."""
+def worker_read(path: str, traced: bool) -> dict:
+    """meshio's peak: the peak RSS increase or, in a separate process, the peak of
+    traced allocations (tracemalloc sees every NumPy buffer, also those allocated and
+    never touched, which RSS does not; its bookkeeping would inflate RSS, hence two runs)."""
     import tracemalloc
 
     import meshio
 
-    before = peak_rss()
-    tracemalloc.start()
+    before = reset_peak()
+    if traced:
+        tracemalloc.start()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         meshio.read(path)
-    traced = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
-    rss = peak_rss() - before
+    measured = tracemalloc.get_traced_memory()[1] if traced else peak_rss() - before
+    return {"measured_bytes": measured}
+
+
+def measure_read(path: Path) -> dict:
     from elastoplast.checks import mesh_read_bytes
 
-    size = Path(path).stat().st_size
-    return {"file": Path(path).name, "size_bytes": size, "rss_bytes": rss, "traced_bytes": traced,
+    size = path.stat().st_size
+    rss = run_worker("read", str(path), "rss")["measured_bytes"]
+    traced = run_worker("read", str(path), "traced")["measured_bytes"]
+    return {"file": path.name, "size_bytes": size, "rss_bytes": rss, "traced_bytes": traced,
             "rss_per_file_byte": rss / size, "traced_per_file_byte": traced / size,
-            "factor": mesh_read_bytes(Path(path), size) // size}
+            "factor": mesh_read_bytes(path, size) // size}
 
 
 def write_mesh_files(dim: int, divisions: list[int], folder: Path) -> list[Path]:
@@ -122,7 +146,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.worker:
         kind, *rest = args.worker
-        print(json.dumps(worker_build(int(rest[0]), json.loads(rest[1])) if kind == "build" else worker_read(rest[0])))
+        print(json.dumps(worker_build(int(rest[0]), json.loads(rest[1])) if kind == "build"
+                         else worker_read(rest[0], rest[1] == "traced")))
         return
     from elastoplast.provenance import stamp, stamp_line
 
@@ -134,7 +159,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for dim, div in READ[level]:
             for path in write_mesh_files(dim, div, Path(tmp)):
-                reads.append({"dim": dim, **run_worker("read", str(path))})
+                reads.append({"dim": dim, **measure_read(path)})
     results = {"stamp": stamp(), "build": builds, "read": reads}
     (out / "results.json").write_text(json.dumps(results, indent=1))
     lines = [stamp_line(results["stamp"]), "",

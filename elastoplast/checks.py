@@ -187,7 +187,7 @@ def discretization_bytes(dim: int, n_nodes: int, n_elements: int, n_facets: int 
 
     Measured (``benchmarks/memory``: peak RSS increase of ``problem_from_dict`` +
     ``discretize`` on graded rectangles and boxes, each in a fresh process): measured /
-    estimate = 0.958, 0.930, 0.919 in 2D (40k, 160k, 640k triangles) and 0.916, 0.892,
+    estimate = 0.951, 0.929, 0.919 in 2D (40k, 160k, 640k triangles) and 0.916, 0.892,
     0.881 in 3D (41k, 192k, 786k tetrahedra); ``tests/test_inputs.py`` checks the
     estimate against tracemalloc's peak on every run.
     The solvers need several times more than this; it is a floor, not a budget.
@@ -204,9 +204,9 @@ def mesh_read_bytes(path: Path, size: int) -> int:
     """Estimated peak memory of ``meshio.read`` on a file of ``size`` bytes.
 
     Peak RSS increase / file size, measured with meshio 5.3.5 (``benchmarks/memory``,
-    160k triangles and 192k tetrahedra with facet groups): gmsh 2.2 ASCII 4.8 (2D) and
-    6.9 (3D), binary 3.8 and 3.9; VTU base64 + zlib 13.6 and 12.8, VTU ASCII 10.3 and
-    13.4; VTK binary 1.9 and 2.1, ASCII 2.2 and 2.8. The factors (``MESH_READ_FACTORS``:
+    160k triangles and 192k tetrahedra with facet groups): gmsh 2.2 ASCII 4.9 (2D) and
+    7.0 (3D), binary 3.8 and 3.8; VTU base64 + zlib 13.5 and 12.8, VTU ASCII 10.3 and
+    13.4; VTK binary 1.9 and 2.1, ASCII 2.2 and 2.7. The factors (``MESH_READ_FACTORS``:
     8 for ``.msh``, 4 for ``.vtk``, 16 for ``.vtu`` and any other suffix) are these
     maxima with a margin. A compressed file can inflate far more (a zlib bomb): that
     is not bounded here.

@@ -495,8 +495,10 @@ def _check_hanging_nodes(points, bfacets, field, n_candidates: int = 8, tol: flo
 
 
 def check_facet_groups(uniq: np.ndarray, counts: np.ndarray, groups: Mapping[str, np.ndarray], n_nodes: int,
-                       field: str) -> None:
-    """Every facet of every group must be a boundary facet of the body."""
+                       field: str, boundary_only: bool = True) -> None:
+    """Every facet of every group must be a boundary facet of the body (with
+    ``boundary_only=False``, a face of some element: facets in no group are ignored,
+    but a facet that is no face would be an element silently dropped)."""
     for name, facets in groups.items():
         if len(facets) == 0:
             continue
@@ -506,7 +508,7 @@ def check_facet_groups(uniq: np.ndarray, counts: np.ndarray, groups: Mapping[str
             raise InputError(field, f"{int(missing.sum())} facet(s) of group {name!r} are not faces of any element, "
                                     f"e.g. nodes {facets[np.flatnonzero(missing)[0]].tolist()}")
         inside = counts[where] == 2
-        if np.any(inside):
+        if boundary_only and np.any(inside):
             raise InputError(field, f"{int(inside.sum())} facet(s) of group {name!r} lie inside the body (between two "
                                     "elements); boundary conditions act on boundary facets only")
 

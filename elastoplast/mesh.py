@@ -249,7 +249,7 @@ def check_generator_grid(axes: Sequence[np.ndarray], size: Sequence[float], divi
 _BODY_TYPES = {2: "triangle", 3: "tetra"}
 _FACET_TYPES = {2: "line", 3: "triangle"}
 _IGNORED_TYPES = {2: {"vertex"}, 3: {"vertex", "line"}}  # gmsh physical points (and curves in 3D)
-_UNTAGGED = "(untagged"  # facets in a file without cell tags: checked, but in no group
+_UNTAGGED = "(untagged"  # facets without a tag (or gmsh physical tag 0): element faces, but in no group
 
 
 def read_mesh(path: str | Path) -> Mesh:
@@ -298,7 +298,8 @@ def read_mesh(path: str | Path) -> Mesh:
     untagged = {k: groups.pop(k) for k in [k for k in groups if k.startswith(_UNTAGGED)]}
     mesh = Mesh(points=points[used], cells=renumber[body], groups=groups)
     uniq, counts = check_conforming(mesh.points, mesh.cells, "mesh.file")
-    check_facet_groups(uniq, counts, {**groups, **untagged}, mesh.n_nodes, "mesh.file")
+    check_facet_groups(uniq, counts, groups, mesh.n_nodes, "mesh.file")
+    check_facet_groups(uniq, counts, untagged, mesh.n_nodes, "mesh.file", boundary_only=False)
     _check_lines_are_edges(mesh, renumber[target[lines]], path)
     return mesh
 
@@ -330,8 +331,8 @@ def _meshio_read(path: Path):
     return m
 
 
-def _cell_tags(m) -> list | None:
-    """Integer tags per cell block: gmsh's physical tags, else the first integer cell data."""
+def _cell_tags(m) -> tuple[str, list] | tuple[None, None]:
+    """``(key, integer tags per cell block)``: gmsh's physical tags, else the first integer cell data."""
     for key in ["gmsh:physical"] + [k for k in m.cell_data if k != "gmsh:physical"]:
         data = m.cell_data.get(key)
         if data is None or len(data) != len(m.cells):
@@ -340,8 +341,8 @@ def _cell_tags(m) -> list | None:
         if all(a.ndim == 1 and len(a) == len(b.data) and (a.dtype.kind in "iu" or (
                 a.dtype.kind == "f" and np.all(np.isfinite(a)) and np.all(a == np.round(a))))
                for a, b in zip(arrays, m.cells)):
-            return [a.astype(np.int64) for a in arrays]
-    return None
+            return key, [a.astype(np.int64) for a in arrays]
+    return None, None
 
 
 def _cells_by_role(m, path: Path) -> tuple[int, np.ndarray, dict[str, np.ndarray], np.ndarray]:
@@ -356,7 +357,9 @@ def _cells_by_role(m, path: Path) -> tuple[int, np.ndarray, dict[str, np.ndarray
         dim = 2
     else:
         listed = ", ".join(f"{n} {t}" for t, n in found.items()) or "no cells"
-        raise InputError("mesh.file", f"{path} has no triangles or tetrahedra (found {listed})")
+        raise InputError("mesh.file", f"{path} has no triangles or tetrahedra (found {listed}): elastoplast solves "
+                                      "linear triangles (2D) or tetrahedra (3D) only (gmsh: first order, no "
+                                      "recombination)")
     body_type, facet_type = _BODY_TYPES[dim], _FACET_TYPES[dim]
     other = {t: n for t, n in found.items() if t not in {body_type, facet_type} | _IGNORED_TYPES[dim]}
     if other:
@@ -372,7 +375,7 @@ def _cells_by_role(m, path: Path) -> tuple[int, np.ndarray, dict[str, np.ndarray
     lines = [d for t, d in blocks if t == "line" and dim == 3]
     lines = np.concatenate(lines).astype(np.int64) if lines else np.zeros((0, 2), dtype=np.int64)
 
-    tags = _cell_tags(m)
+    tag_key, tags = _cell_tags(m)
     tag_names: dict[tuple[int, int], str] = {}
     for name, data in (m.field_data or {}).items():
         data = np.asarray(data).ravel()
@@ -386,6 +389,9 @@ def _cells_by_role(m, path: Path) -> tuple[int, np.ndarray, dict[str, np.ndarray
             lists.setdefault(f"{_UNTAGGED} {facet_type}s)", []).append(data)
             continue
         for tag in np.unique(tags[i]):
+            if tag == 0 and tag_key == "gmsh:physical":  # gmsh: in no physical group (Mesh.SaveAll)
+                lists.setdefault(f"{_UNTAGGED} {facet_type}s)", []).append(data[tags[i] == tag])
+                continue
             name = tag_names.get((dim - 1, int(tag)), str(int(tag)))
             lists.setdefault(name, []).append(data[tags[i] == tag])
     facet_groups = {name: np.concatenate(parts).astype(np.int64) for name, parts in lists.items()}

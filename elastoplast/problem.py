@@ -129,10 +129,13 @@ def _compile_expression(expr: str, dim: int, fieldname: str):
 MAX_PSI_OVER_SPAN = 1e6
 
 
-def _check_psi(psi: np.ndarray, xp: np.ndarray, what: str, field: str) -> np.ndarray:
-    """The obstacle at the contact nodes must be finite and >= 0 (MATH.md section 1:
-    the rigid body lies below x_d = 0 and touches the body where psi = 0); a psi that
-    stays well above 0 only shifts U by its minimum, which is said in a warning."""
+def _check_psi(psi: np.ndarray, xp: np.ndarray, what: str, field: str, centre=None) -> np.ndarray:
+    """The obstacle at the contact nodes must be finite, >= 0 (MATH.md section 1: the
+    rigid body lies below x_d = 0 and touches the body where psi = 0) and not steeper
+    than ``MAX_PSI_OVER_SPAN`` times the zone. A psi that does not reach 0 on the zone
+    only shifts U by the gap, which is said in a warning: for a shape with a ``centre``
+    (psi = 0 there) when the centre lies outside the zone's bounding box, for a formula
+    when its minimum at the nodes exceeds half its range over them."""
     if not np.all(np.isfinite(psi)):
         bad = np.flatnonzero(~np.isfinite(psi))[0]
         raise InputError(field, f"{what} is not finite at every contact node (e.g. {psi[bad]} at x' = "
@@ -151,8 +154,13 @@ def _check_psi(psi: np.ndarray, xp: np.ndarray, what: str, field: str) -> np.nda
         raise InputError(field, f"{what} rises to {high:.4g} at x' = {xp[i].tolist()}, more than {MAX_PSI_OVER_SPAN:g} "
                                 f"times the size {span:.4g} of the contact zone: a surface this steep touches one node "
                                 "and its values elsewhere only upset the solvers")
-    if low > 1e-12 * scale and low > 0.01 * (high - low):
-        warnings.warn(f"{field}: the obstacle does not touch the body before loading (min psi = {low:.4g} > 0 at "
+    if centre is not None:
+        gap = bool(np.any((np.asarray(centre) < xp.min(axis=0)) | (np.asarray(centre) > xp.max(axis=0))))
+    else:
+        gap = low > 1e-12 * scale and low > 0.5 * (high - low)
+    if gap:
+        named = field if centre is None else field.rsplit(".", 1)[0] + ".center"
+        warnings.warn(f"{named}: the obstacle does not touch the body before loading (min psi = {low:.4g} > 0 at "
                       "the contact nodes): U includes this initial gap", stacklevel=3)
     return np.maximum(psi, 0.0)
 
@@ -185,9 +193,10 @@ class Obstacle:
                         f"from the centre {list(self.center)})",
                     )
                 # = R - sqrt(R^2 - r^2), without cancellation
-                return _check_psi(r2 / (R + np.sqrt(R * R - r2)), xp, f"the {self.shape}", f"{field}.radius")
+                return _check_psi(r2 / (R + np.sqrt(R * R - r2)), xp, f"the {self.shape}", f"{field}.radius",
+                                  self.center)
             if self.shape == "paraboloid":
-                return _check_psi(r2 / (2.0 * self.radius), xp, "the paraboloid", f"{field}.radius")
+                return _check_psi(r2 / (2.0 * self.radius), xp, "the paraboloid", f"{field}.radius", self.center)
         if self.shape == "flat":
             return np.zeros(xp.shape[0])
         code, constants = _compile_expression(self.expression, self.dim, f"{field}.expression")

@@ -695,6 +695,87 @@ def test_gmsh_recombined_quads(tmp_path, capsys):
     refused(tmp_path, capsys, data, "mesh.file", "quad", "beside")
 
 
+def gmsh_two_rectangles(path: Path, *, fragment: bool, right_size: float | None) -> Path:
+    """Two unit squares side by side meshed by gmsh, sharing their interface (fragment)
+    or each meshed on its own (gmsh then writes the interface nodes twice)."""
+    gmsh = pytest.importorskip("gmsh")
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("two")
+        left, right = gmsh.model.occ.addRectangle(0, 0, 0, 1, 1), gmsh.model.occ.addRectangle(1, 0, 0, 1, 1)
+        if fragment:
+            gmsh.model.occ.fragment([(2, left)], [(2, right)])
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.25)
+        if right_size is not None:  # on the right square's own copy of the interface points too
+            gmsh.model.mesh.setSize(gmsh.model.getBoundary([(2, right)], recursive=True), right_size)
+        gmsh.model.addPhysicalGroup(2, [t for _, t in gmsh.model.getEntities(2)], name="body")
+        for name, box in (("bottom", (-1, -1e-6, -1, 3, 1e-6, 1)), ("top", (-1, 1 - 1e-6, -1, 3, 1 + 1e-6, 1)),
+                          ("left", (-1e-6, -1, -1, 1e-6, 2, 1)), ("right", (2 - 1e-6, -1, -1, 2 + 1e-6, 2, 1))):
+            curves = [t for _, t in gmsh.model.getEntitiesInBoundingBox(*box, dim=1)]
+            gmsh.model.addPhysicalGroup(1, curves, name=name)
+        gmsh.model.mesh.generate(2)
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+    return path
+
+
+@pytest.mark.parametrize("fragment,right_size,outcome", [(True, None, "read"), (False, None, "merged"),
+                                                         (False, 0.1, "refused")])
+def test_gmsh_volumes_meshed_apart(tmp_path, capsys, fragment, right_size, outcome):
+    """gmsh meshes of two touching squares: fragmented (one conforming mesh), not
+    fragmented with the same sizes (the interface meshed twice alike: its duplicate
+    nodes merged, then conforming), and not fragmented with a finer right square (a
+    non-conforming interface)."""
+    gmsh_two_rectangles(tmp_path / "m.msh", fragment=fragment, right_size=right_size)
+    code = solve_cli(tmp_path, write_toml(tmp_path / "p.toml", square_problem("m.msh")))
+    err = capsys.readouterr().err
+    if outcome == "refused":
+        assert_refused(code, err, "mesh.file", "non-conforming interface")
+    else:
+        assert code == 0, err
+        assert ("merged" in err) == (outcome == "merged")
+
+
+def test_gmsh_untagged_facets_are_ignored(tmp_path):
+    """With Mesh.SaveAll gmsh writes every line with physical tag 0, an embedded
+    line inside the square too: in no group, and faces of elements, so accepted."""
+    gmsh = pytest.importorskip("gmsh")
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("embedded")
+        square_tag = gmsh.model.occ.addRectangle(0, 0, 0, 2, 1)
+        a, b = gmsh.model.occ.addPoint(0.5, 0.5, 0), gmsh.model.occ.addPoint(1.5, 0.5, 0)
+        line = gmsh.model.occ.addLine(a, b)
+        gmsh.model.occ.synchronize()
+        gmsh.model.mesh.embed(1, [line], 2, square_tag)
+        gmsh.option.setNumber("Mesh.SaveAll", 1)
+        gmsh.option.setNumber("Mesh.MshFileVersion", 2.2)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.25)
+        gmsh.model.mesh.generate(2)
+        gmsh.write(str(tmp_path / "e.msh"))
+    finally:
+        gmsh.finalize()
+    raw = meshio.read(tmp_path / "e.msh")
+    lines = np.concatenate([b.data for b in raw.cells if b.type == "line"])
+    assert np.any(np.all(np.isclose(raw.points[lines][:, :, 1], 0.5), axis=1))  # the embedded line is there
+    mesh = ep.read_mesh(tmp_path / "e.msh")
+    assert dict(mesh.groups) == {} and mesh.n_elements > 0
+
+
+def test_one_division_spans_the_side():
+    """graded_nodes with one division and the contact centre inside used to return
+    [centre, end], a mesh of half the block."""
+    mesh = ep.structured_mesh([4.0, 2.0, 1.0], [1, 1, 1], 0.5)
+    assert np.allclose(mesh.points.min(axis=0), [-2, -1, 0]) and np.allclose(mesh.points.max(axis=0), [2, 1, 1])
+    X = mesh.points[mesh.cells]
+    volume = np.abs(np.linalg.det(X[:, 1:] - X[:, :1])).sum() / 6
+    assert volume == pytest.approx(8.0)
+
+
 # ============================================================================
 # 5. obstacle expressions: bounded cost, psi >= 0 and finite
 # ============================================================================
@@ -740,6 +821,13 @@ def test_expression_obstacles(tmp_path, capsys, expr, words):
     start = time.perf_counter()
     refused(tmp_path, capsys, data, "obstacle.expression", words)
     assert time.perf_counter() - start < 10.0  # the whole command, mesh included
+
+
+def test_obstacle_centre_outside_the_zone_warns(tmp_path, capsys):
+    data = small_cylinder()
+    data["obstacle"] = {"shape": "paraboloid", "radius": 40.0, "center": [100.0]}
+    assert solve_cli(tmp_path, write_toml(tmp_path / "p.toml", data)) == 0
+    assert "warning: obstacle.center: the obstacle does not touch" in capsys.readouterr().err
 
 
 def test_expression_that_leaves_a_gap_warns(tmp_path, capsys):

@@ -16,7 +16,7 @@ gradient-mapping test of O'Donoghue & Candes (2015)
 points uphill. The restart recovers the linear rate of strongly convex
 problems (H > 0) with a better constant; without it FISTA oscillates.
 
-The iteration stops on the certificate of MATH.md section 6 at the candidate
+The iteration stops on the certificate of docs/certificate.md at the candidate
 ``(R(eps(x^k)), x^k)``, like plain Uzawa.
 
 ALG2 (Fortin & Glowinski), ``FastOptions(variant="alg2")``, splits ``q = eps(v)``
@@ -48,19 +48,19 @@ parameter to tune, so it stays the default; ALG2 remains selectable.
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from .certificate import certify
 from .discretize import nondimensionalize
 from .errors import InputError
+from .iteration import Monitor
 from .material import Material, n_components, return_mapping
-from .solution import Solution, Status, make_solution
+from .options import MAX_ITER_CEILING, SolverOptions, option
+from .solution import Solution
 from .uzawa import (
+    FACTORIZATIONS,
     ContactOperators,
     Solve,
     contact_operators,
@@ -68,7 +68,6 @@ from .uzawa import (
     metric_matrix,
     project_contact,
     project_stresses,
-    within_tolerance,
 )
 
 #: step as a share of FISTA's bound 1 / lambda_max(C)
@@ -81,22 +80,21 @@ DEFAULT_PENALTY = {"stiffness": 0.4, "identity": 0.6}
 
 
 @dataclass(frozen=True)
-class FastOptions:
-    """Settings of :func:`solve_uzawa_fast`; ``check_every`` iterations between
-    certificate evaluations (history rows are written at those)."""
+class FastOptions(SolverOptions):
+    """Settings of :func:`solve_uzawa_fast` and :func:`solve_alg2` (``tol``,
+    ``max_iter``, ``time_limit``, ``progress``:
+    :class:`~elastoplast.options.SolverOptions`). The step is fixed by FISTA's
+    bound (:data:`RHO_SHARE`), so there is no ``rho``."""
 
-    tol: float = 1e-6
-    max_iter: int = 5000
-    check_every: int = 5
-    restart: bool = True
-    factorization: str = "auto"
-    progress: bool = False
-    #: "fista" (the default, see the module docstring) or "alg2"
-    variant: str = "fista"
-    #: ALG2 only: the metric M of the penalty, "stiffness" (M = C) or "identity"
-    splitting: str = "stiffness"
-    #: ALG2 only: the penalty r (None: :data:`DEFAULT_PENALTY`)
-    penalty: float | None = None
+    max_iter: int = option(5000, int, "iteration limit", lo=1, hi=MAX_ITER_CEILING)
+    check_every: int = option(5, int, "iterations between certificate checks", lo=1, hi=MAX_ITER_CEILING)
+    restart: bool = option(True, bool, "adaptive restart of the momentum (FISTA)")
+    factorization: str = option("auto", str, "sparse factorisation of the metric", choices=("auto", *FACTORIZATIONS))
+    variant: str = option("fista", str, "the accelerated method", choices=("fista", "alg2"))
+    splitting: str = option("stiffness", str, "ALG2 only: the metric M of the penalty (M = C or I)",
+                            choices=("stiffness", "identity"))
+    penalty: float | None = option(None, float, "ALG2 only: the penalty r in units of E (none: automatic)",
+                                   lo=0.0, lo_open=True, none=True)
 
 
 def alg2_penalty(material: Material, options: "FastOptions") -> float:
@@ -214,30 +212,12 @@ def alg2_displacements(nd, step: ALG2Step, q: np.ndarray, sigma: np.ndarray, V: 
                            step.ops, lam)
 
 
-def _check(nd, units, x: np.ndarray, X: float, n: int, options: "FastOptions", t_start: float,
-           history: list, label: str, **extra: Any):
-    """Certify the candidate ``(R(eps(x)), x, X)`` and append a history row.
-    Returns ``(sigma, xi, status, message)``; status None means: go on."""
-    sigma, xi = project_stresses(nd.material, nd.strain(x))
-    kkt = certify(nd, sigma, xi, nd.full_displacement(x), X)
-    history.append({"iteration": n, "residuals": kkt.as_dict(), "kkt_worst": kkt.worst,
-                    "U": X * units.displacement, **extra, "time_s": time.perf_counter() - t_start})
-    if options.progress:
-        print(f"{label} {n:5d}  kkt {kkt.worst:.2e}", file=sys.stderr, flush=True)
-    if not (np.all(np.isfinite(x)) and np.isfinite(kkt.worst)):
-        return sigma, xi, Status.DIVERGED, f"non-finite iterate at iteration {n}"
-    if within_tolerance(kkt, options.tol):
-        return sigma, xi, Status.CONVERGED, f"KKT residuals <= {options.tol:g} after {n} iterations"
-    if n == options.max_iter:
-        return sigma, xi, Status.MAX_ITERATIONS, f"stopped after max_iter = {n} iterations (worst KKT residual {kkt.worst:.3g})"
-    return sigma, xi, None, ""
-
-
 def solve_uzawa_fast(disc, options: FastOptions = FastOptions()) -> Solution:
     """FISTA with adaptive restart on Uzawa's steps; see the module docstring."""
     t_start = time.perf_counter()
     timings = {"setup": 0.0, "iterations": 0.0, "certificate": 0.0}
     nd, units = nondimensionalize(disc)
+    monitor = Monitor("uzawa-fast", disc, nd, units, options, t_start=t_start)
     rho = RHO_SHARE / nd.material.max_stiffness_eigenvalue()
     solve = factorize_metric(metric_matrix(nd), options.factorization)
     ops = contact_operators(nd.N, solve)
@@ -246,17 +226,14 @@ def solve_uzawa_fast(disc, options: FastOptions = FastOptions()) -> Solution:
     x_old, X_old, t = x.copy(), X, 1.0
     timings["setup"] = time.perf_counter() - t_start
 
-    history: list[dict[str, Any]] = []
-    status, message, restarts = Status.MAX_ITERATIONS, "", 0
-    n = 0
+    restarts, n = 0, 0
     while True:
-        if n % options.check_every == 0 or n == options.max_iter:
+        if n % options.check_every == 0 or n >= options.max_iter:
             t0 = time.perf_counter()
-            sigma, xi, done, message = _check(nd, units, x, X, n, options, t_start, history, "uzawa-fast",
-                                              restarts=restarts)
+            sigma, xi = project_stresses(nd.material, nd.strain(x))
+            verdict = monitor.check(n, sigma, xi, x, X, restarts=restarts)
             timings["certificate"] += time.perf_counter() - t0
-            if done is not None:
-                status = done
+            if verdict is not None:
                 break
         t0 = time.perf_counter()
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
@@ -271,13 +248,8 @@ def solve_uzawa_fast(disc, options: FastOptions = FastOptions()) -> Solution:
         x_old, X_old, x, X, t = x, X, x_new, X_new, t_new
         timings["iterations"] += time.perf_counter() - t0
         n += 1
-
-    timings["total"] = time.perf_counter() - t_start
-    return make_solution(
-        disc, method="uzawa-fast", status=status, sigma=sigma * units.stress, xi=xi * units.stress,
-        u_free=x * units.displacement, U=X * units.displacement, iterations=n, timings=timings,
-        message=f"{message} (FISTA, rho = {RHO_SHARE:g}/lambda_max(C), {restarts} restarts)", history=history,
-    )
+    return monitor.solution(verdict, sigma, xi, x, X, iterations=n, timings=timings,
+                            note=f"FISTA, rho = {RHO_SHARE:g}/lambda_max(C), {restarts} restarts")
 
 
 def solve_alg2(disc, options: FastOptions = FastOptions()) -> Solution:
@@ -291,6 +263,7 @@ def solve_alg2(disc, options: FastOptions = FastOptions()) -> Solution:
     t_start = time.perf_counter()
     timings = {"setup": 0.0, "iterations": 0.0, "certificate": 0.0}
     nd, units = nondimensionalize(disc)
+    monitor = Monitor("uzawa-fast", disc, nd, units, options, t_start=t_start)
     r = alg2_penalty(nd.material, options)
     step = alg2_setup(nd, r, options.splitting, options.factorization)
     zero = np.zeros(nd.n_free)
@@ -299,16 +272,14 @@ def solve_alg2(disc, options: FastOptions = FastOptions()) -> Solution:
     sigma, xi = project_stresses(nd.material, q)
     timings["setup"] = time.perf_counter() - t_start
 
-    history: list[dict[str, Any]] = []
-    status, message = Status.MAX_ITERATIONS, ""
     n = 0
     while True:
-        if n % options.check_every == 0 or n == options.max_iter:
+        if n % options.check_every == 0 or n >= options.max_iter:
             t0 = time.perf_counter()
-            s_c, x_c, done, message = _check(nd, units, v, V, n, options, t_start, history, "alg2")
+            s_c, x_c = project_stresses(nd.material, nd.strain(v))
+            verdict = monitor.check(n, s_c, x_c, v, V)
             timings["certificate"] += time.perf_counter() - t0
-            if done is not None:
-                status = done
+            if verdict is not None:
                 break
         t0 = time.perf_counter()
         v, V, lam = alg2_displacements(nd, step, q, sigma, V, lam)  # step (1)
@@ -317,25 +288,13 @@ def solve_alg2(disc, options: FastOptions = FastOptions()) -> Solution:
                                    step.M_inv)  # steps (2) and (3)
         timings["iterations"] += time.perf_counter() - t0
         n += 1
-
-    timings["total"] = time.perf_counter() - t_start
-    return make_solution(
-        disc, method="uzawa-fast", status=status, sigma=s_c * units.stress, xi=x_c * units.stress,
-        u_free=v * units.displacement, U=V * units.displacement, iterations=n, timings=timings,
-        message=f"{message} (ALG2, {options.splitting} splitting, r = {r:g} in units of E)", history=history,
-    )
+    return monitor.solution(verdict, s_c, x_c, v, V, iterations=n, timings=timings,
+                            note=f"ALG2, {options.splitting} splitting, r = {r:g} in units of E")
 
 
-def uzawa_fast_method(disc, tol: float | None = None, max_iter: int | None = None, progress: bool = False,
-                      **options: Any) -> Solution:
-    """The ``"uzawa-fast"`` entry of the method registry (``rho`` is ignored: the step is fixed by FISTA's bound)."""
-    known = set(FastOptions.__dataclass_fields__)
-    kw = {k: v for k, v in options.items() if k in known}
-    kw.update({k: v for k, v in (("tol", tol), ("max_iter", max_iter)) if v is not None})
-    opts = FastOptions(progress=progress, **kw)
-    if opts.variant not in VARIANTS:
-        raise InputError("variant", f"must be one of {sorted(VARIANTS)}, got {opts.variant!r}")
-    return VARIANTS[opts.variant](disc, opts)
+def solve_accelerated(disc, options: FastOptions = FastOptions()) -> Solution:
+    """The ``"uzawa-fast"`` method: FISTA (default) or ALG2 as ``options.variant`` says."""
+    return VARIANTS[options.variant](disc, options)
 
 
 #: the two accelerated dual methods behind ``"uzawa-fast"``

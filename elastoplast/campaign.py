@@ -41,6 +41,8 @@ import json
 import logging
 import math
 import os
+import re
+import shutil
 import statistics
 import sys
 import tempfile
@@ -54,7 +56,9 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 
 from .errors import InputError
-from .problem import SECTIONS, SOLVER_KEYS, problem_from_dict, read_toml, solver_settings
+from .output import json_text
+from .problem import SECTIONS, problem_from_dict, read_toml
+from .solvers import check_solvable, method_options, solver_settings
 from .store import ERROR, ResolvedInput, Store, atomic_write, case_record, content_hash, rebuild_problem, resolve
 
 
@@ -107,8 +111,8 @@ def _axes(sweep: Any) -> dict[str, list]:
         head = axis.split(".")
         if head[0] not in SECTIONS or len(head) < 2:
             raise InputError(name, f"unknown key: an axis is 'method' or a dotted key in {sorted(SECTIONS)}")
-        if head[0] == "solver" and (len(head) != 2 or head[1] not in SOLVER_KEYS):
-            raise InputError(name, f"unknown key (the solver keys are {list(SOLVER_KEYS)})")
+        if head[0] == "solver" and len(head) != 2:
+            raise InputError(name, "unknown key (a solver axis is 'method' or 'solver.<option>')")
         if not isinstance(values, list):
             raise InputError(name, f"must be a list of values, got {values!r}")
         if not values:
@@ -169,7 +173,7 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
 
     cases: dict[str, Case] = {}
     meshes: dict[str, dict] = {}  # one copy of each distinct mesh
-    checked: set[str] = set()
+    checked: dict[str, Any] = {}  # problem id -> its discretisation (the last few, for the checks)
     n_points = 0
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -186,9 +190,16 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
                 mesh_key = content_hash({}, inp.arrays)
                 inp = ResolvedInput(spec=inp.spec, arrays=meshes.setdefault(mesh_key, dict(inp.arrays)))
                 problem_id = inp.problem_id
-                if problem_id not in checked:
-                    discretize(problem)
-                    checked.add(problem_id)
+                disc = checked.pop(problem_id, None) or discretize(problem)
+                checked[problem_id] = disc
+                while len(checked) > 8:  # bounded memory for long sweeps
+                    checked.pop(next(iter(checked)))
+                opts = method_options(method, options)
+                try:
+                    check_solvable(disc, method, opts)
+                except InputError as exc:  # an option that does not suit the problem: name it as written
+                    field = f"solver.{exc.field}" if exc.field in opts.specs() else exc.field
+                    raise InputError(field, exc.message) from None
             except InputError as exc:
                 raise _blame(exc, point) from None
             case_id = inp.case_id
@@ -220,13 +231,51 @@ def machine_cores() -> int:
         return os.cpu_count() or 1
 
 
+#: most local workers per core (each is a process holding its own problems)
+MAX_WORKERS_PER_CORE = 4
+_ADDRESS = re.compile(r"^((tcp|tls|inproc|ucx|ws|wss)://)?(\[[0-9a-fA-F:]+\]|[A-Za-z0-9_.-]+)(:\d{1,5})?/?$")
+
+
+def check_cluster(scheduler: str | None, n_workers: int | None) -> None:
+    """Refuse a scheduler address that cannot be one and a local cluster size
+    that is not a positive number of processes this machine can hold."""
+    if scheduler is not None:
+        port = scheduler.rsplit(":", 1)[-1].rstrip("/")
+        if (not isinstance(scheduler, str) or not _ADDRESS.match(scheduler.strip())
+                or (port.isdigit() and not 0 < int(port) < 65536)):
+            raise InputError("scheduler", f"{scheduler!r} is not a scheduler address (e.g. tcp://127.0.0.1:8786)")
+        if n_workers is not None:
+            raise InputError("workers", "applies to the local cluster only, not with a scheduler address")
+    if n_workers is not None:
+        most = MAX_WORKERS_PER_CORE * machine_cores()
+        if isinstance(n_workers, bool) or not isinstance(n_workers, int) or not 1 <= n_workers <= most:
+            raise InputError("workers", f"must be an integer from 1 to {most} ({MAX_WORKERS_PER_CORE} per core), "
+                                        f"got {n_workers!r}")
+
+
+def _probe(scheduler: str) -> None:
+    """Fail at once when nothing listens at a TCP address (Dask would retry for its whole timeout)."""
+    import socket
+
+    rest = scheduler.strip().split("://", 1)[-1].rstrip("/")
+    if scheduler.startswith(("tcp://", "tls://")) or "://" not in scheduler:
+        host, _, port = rest.rpartition(":")
+        if host and port.isdigit():
+            try:
+                socket.create_connection((host.strip("[]"), int(port)), timeout=5.0).close()
+            except OSError as exc:
+                raise InputError("scheduler", f"cannot connect to {scheduler}: {exc.strerror or exc}") from None
+
+
 @contextmanager
 def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> Iterator[Any]:
     """A client of the cluster at ``scheduler``, or of a local cluster with one
     single-threaded worker process per core (``n_workers`` to override)."""
     from distributed import Client, LocalCluster
 
+    check_cluster(scheduler, n_workers)
     if scheduler:
+        _probe(scheduler)
         try:
             client = Client(scheduler, timeout="20s")
         except (OSError, TimeoutError) as exc:
@@ -250,7 +299,7 @@ def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[
     "worker"}`` if anything raised.
     """
     from .discretize import discretize
-    from .output import write_results
+    from .output import write_files
     from .solvers import solve
 
     worker = _worker_address()
@@ -258,7 +307,7 @@ def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[
         disc = discretize(rebuild_problem(spec, arrays))
         sol = solve(disc, spec["method"], **spec["options"])
         with tempfile.TemporaryDirectory(prefix="elastoplast-case-") as tmp:
-            data = write_results(tmp, disc, sol)
+            data = write_files(Path(tmp), disc, sol)
             vtu = (Path(tmp) / "solution.vtu").read_bytes()
         return {"solution": sol, "summary": data, "vtu": vtu, "worker": worker}
     except Exception as exc:  # recorded in the store; the campaign goes on
@@ -361,7 +410,20 @@ def run_campaign(campaign: Campaign, out: str | Path, *, scheduler: str | None =
     solver did not solve. ``client`` (a ``distributed.Client``) wins over
     ``scheduler``; without both a local cluster is started.
     """
+    if client is None:
+        check_cluster(scheduler, n_workers)
     store = Store(out)
+    created = not store.path.exists()
+    try:
+        return _run(campaign, store, scheduler, client, n_workers, progress, retry_failed)
+    except InputError:  # e.g. no scheduler at the address: leave no empty store behind
+        if created and not store.rows():
+            shutil.rmtree(store.path, ignore_errors=True)
+        raise
+
+
+def _run(campaign: Campaign, store: Store, scheduler: str | None, client: Any, n_workers: int | None,
+         progress: bool, retry_failed: bool) -> CampaignRun:
     with store.writer():
         keep = {r["id"]: r["status"] for r in store.rows()}
         keep = {k: s for k, s in keep.items() if s != ERROR and not (retry_failed and s != "converged")}
@@ -399,7 +461,7 @@ def solution_errors(disc, sol, ref) -> dict[str, float]:
 
     * ``U_rel = |U - U_ref| / |U_ref|``;
     * ``sigma_rel = sqrt([s - s_ref, s - s_ref] / [s_ref, s_ref])`` in the energy
-      inner product of MATH.md section 2 (``s = (sigma, xi)``; the xi part is
+      inner product of docs/math.md (``s = (sigma, xi)``; the xi part is
       dropped when H = 0);
     * ``time_ratio = time / time_ref`` (each solver's own ``timings['total']``).
     """
@@ -533,6 +595,8 @@ def compare(store_dir: str | Path, method: str, *, options: Mapping[str, Any] | 
     it. Writes ``report.md``, ``compare.png`` and ``compare.json`` into ``out``
     (default ``DIR/compare-<method>``) and returns the :class:`Comparison`.
     """
+    if client is None:
+        check_cluster(scheduler, n_workers)
     store = Store(store_dir)
     if not store.exists():
         raise InputError("store", f"no campaign store at {store.path} (no index.sqlite)")
@@ -572,7 +636,7 @@ def compare(store_dir: str | Path, method: str, *, options: Mapping[str, Any] | 
     out = Path(out) if out is not None else store.path / f"compare-{method}"
     out.mkdir(parents=True, exist_ok=True)
     atomic_write(out / "report.md", comparison.markdown().encode())
-    atomic_write(out / "compare.json", (json.dumps({"method": method, "options": options, "rows": rows_out,
-                                                    "summary": comparison.summary}, indent=2) + "\n").encode())
+    atomic_write(out / "compare.json", json_text({"method": method, "options": options, "rows": rows_out,
+                                                  "summary": comparison.summary}).encode())
     plot_comparison(comparison, out / "compare.png")
     return comparison

@@ -1,4 +1,4 @@
-"""Solver-independent KKT certificate of (2.1) (MATH.md section 6).
+"""Solver-independent KKT certificate of (2.1) (docs/certificate.md).
 
 :func:`certify` takes any candidate ``(sigma, xi, u, U)`` (and optionally the
 contact forces the solver claims) and measures how far it is from the discrete
@@ -8,6 +8,7 @@ same check applies to every solver.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -31,8 +32,8 @@ class KKTResiduals:
       ``|tau_hat|_e^2 = tau A tau + eta^2 / H``. The global norm dilutes an
       error confined to one element; this one does not;
     * ``equilibrium``: ``||r - N^T lam||_2 / ||s||_2`` over the free dofs, where
-      ``s`` sums the magnitudes ``| |T| B_T^T sigma_T |`` of the element
-      contributions at each dof;
+      ``s = |B|^T |sigma |T||`` sums, at each dof, the magnitudes of every
+      single term (element and stress component) that enters ``r`` there;
     * ``force_balance``: ``|sum lam - F| / F``;
     * ``sign``: ``sum max(-lam, 0) / F``;
     * ``penetration``: ``max(-g, 0).max() / delta``;
@@ -51,7 +52,9 @@ class KKTResiduals:
 
     @property
     def worst(self) -> float:
-        return max(self.as_dict().values())
+        """The largest residual; NaN if any residual is NaN (a NaN is never "small")."""
+        values = list(self.as_dict().values())
+        return math.nan if any(math.isnan(v) for v in values) else max(values)
 
     def as_dict(self) -> dict[str, float]:
         return {k: float(v) for k, v in asdict(self).items()}
@@ -82,6 +85,16 @@ def contact_forces(disc: Discretization, sigma: np.ndarray) -> np.ndarray:
     return disc.N @ disc.internal_force(sigma)
 
 
+def _shaped(a, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``a`` as a float array of ``shape`` (the same number of entries in any layout)."""
+    from .errors import InputError
+
+    arr = np.asarray(a, dtype=float)
+    if arr.size != int(np.prod(shape)):
+        raise InputError(name, f"expected {int(np.prod(shape))} values {shape}, got {arr.size} {arr.shape}")
+    return arr.reshape(shape)
+
+
 def certify(
     disc: Discretization,
     sigma: np.ndarray,
@@ -95,9 +108,9 @@ def certify(
     The candidate's origin does not matter: no solver output other than these
     arrays is used.
     """
-    sigma = np.asarray(sigma, dtype=float).reshape(disc.n_elements, disc.k)
-    xi = np.asarray(xi, dtype=float).reshape(disc.n_elements)
-    u_all = np.asarray(u, dtype=float).reshape(-1)
+    sigma = _shaped(sigma, (disc.n_elements, disc.k), "sigma")
+    xi = _shaped(xi, (disc.n_elements,), "xi")
+    u_all = _shaped(u, (disc.mesh.n_nodes, disc.dim), "u").reshape(-1)
     u_free = u_all[disc.free]
     F = disc.force
 
@@ -109,7 +122,7 @@ def certify(
     constitutive_max = np.sqrt(diff.max() / max(ref.max(), tiny))
 
     r = disc.internal_force(sigma)
-    lam = disc.N @ r if contact_force is None else np.asarray(contact_force, dtype=float)
+    lam = disc.N @ r if contact_force is None else _shaped(contact_force, (disc.n_contact,), "contact_force")
     magnitude = abs(disc.B.T) @ np.abs(sigma * disc.volumes[:, None]).ravel()
     res = r - disc.N.T @ lam
     equilibrium = np.linalg.norm(res) / max(np.linalg.norm(magnitude), np.finfo(float).tiny)

@@ -1,4 +1,4 @@
-"""The discrete problem (2.1) as conic programs, solved by Clarabel (MATH.md section 5).
+"""The discrete problem (2.1) as conic programs, solved by Clarabel (docs/math.md).
 
 * Stress form (S): minimise ``1/2 [tau_hat, tau_hat] + psi . lam`` over element
   stresses, hardening stresses and contact forces, subject to equilibrium, the
@@ -14,6 +14,7 @@ All of them solve the problem in the O(1) units of
 
 from __future__ import annotations
 
+import sys
 import time
 import warnings
 from dataclasses import dataclass, replace
@@ -22,31 +23,36 @@ import numpy as np
 import scipy.sparse as sp
 
 from .discretize import Discretization, Units, nondimensionalize
+from .iteration import within_tolerance
 from .material import SQRT_3_2, return_mapping, von_mises
+from .options import SolverOptions, option
 from .polish import newton_polish
 from .solution import Solution, Status, make_solution
 
 
 @dataclass(frozen=True)
-class ConicOptions:
-    """Interior-point settings. ``tol`` is Clarabel's relative gap and feasibility
-    tolerance. Raw dual displacements are only as accurate as the gap allows;
-    with ``polish`` (default) the interior point only has to find the plastic
-    and contact sets, and Newton steps do the rest: on nine test problems
-    tol = 1e-6, 1e-8 and 1e-10 all certified at 1e-14..1e-16, 1e-8 saving 10-30%
-    of the time of 1e-10 (21.1 s -> 16.7 s on a 12.7k-tetrahedra gmsh mesh)."""
+class ConicOptions(SolverOptions):
+    """Settings of the conic methods (``tol``, ``max_iter``, ``time_limit``,
+    ``progress``: :class:`~elastoplast.options.SolverOptions`).
 
-    tol: float = 1e-8
-    max_iter: int = 200
-    verbose: bool = False
-    time_limit: float = float("inf")
+    ``tol`` is what every method's ``tol`` is: the answer is CONVERGED when
+    the certified worst KKT residual is at most ``tol``. ``ip_tol`` is
+    Clarabel's own relative gap and feasibility tolerance, and ``max_iter``
+    and ``time_limit`` bound the interior point. Raw dual displacements are
+    only as accurate as the gap allows; with ``polish`` (default) the interior
+    point only has to find the plastic and contact sets, and Newton steps do
+    the rest: on nine test problems ip_tol = 1e-6, 1e-8 and 1e-10 all
+    certified at 1e-14..1e-16, 1e-8 saving 10-30% of the time of 1e-10
+    (21.1 s -> 16.7 s on a 12.7k-tetrahedra gmsh mesh)."""
+
+    max_iter: int = option(200, int, "interior-point iteration limit", lo=1, hi=10_000)
+    ip_tol: float = option(1e-8, float, "Clarabel's gap and feasibility tolerance", lo=1e-14, hi=1e-3)
+    verbose: bool = option(False, bool, "Clarabel's own iteration log (on stdout)", persist=False)
     #: Clarabel's KKT factorisation: "qdldl", "faer" or "auto" (see :func:`kkt_solver`)
-    linear_solver: str = "auto"
+    linear_solver: str = option("auto", str, "Clarabel's KKT factorisation", choices=("auto", "qdldl", "faer"))
     #: finish with active-set Newton steps (elastoplast.polish); the certificate
     #: decides which of the two candidates is returned
-    polish: bool = True
-    #: the status is CONVERGED when the certified worst KKT residual is at most this
-    accept: float = 1e-6
+    polish: bool = option(True, bool, "finish with active-set Newton steps (elastoplast.polish)")
 
 
 def element_weights(disc: Discretization) -> np.ndarray:
@@ -174,11 +180,11 @@ def clarabel_settings(options: ConicOptions, solver: str = "qdldl"):
     s = clarabel.DefaultSettings()
     s.verbose = options.verbose
     s.max_iter = options.max_iter
-    s.time_limit = options.time_limit
-    s.tol_gap_abs = options.tol
-    s.tol_gap_rel = options.tol
-    s.tol_feas = options.tol
-    s.tol_ktratio = min(1e-6, options.tol)
+    s.time_limit = float("inf") if options.time_limit is None else options.time_limit
+    s.tol_gap_abs = options.ip_tol
+    s.tol_gap_rel = options.ip_tol
+    s.tol_feas = options.ip_tol
+    s.tol_ktratio = min(1e-6, options.ip_tol)
     s.direct_solve_method = solver
     return s
 
@@ -191,7 +197,7 @@ _CLARABEL_STATUS = {
     "DualInfeasible": Status.INFEASIBLE,
     "AlmostDualInfeasible": Status.INFEASIBLE,
     "MaxIterations": Status.MAX_ITERATIONS,
-    "MaxTime": Status.MAX_ITERATIONS,
+    "MaxTime": Status.TIME_LIMIT,
 }
 
 
@@ -276,7 +282,12 @@ def _finish(disc: Discretization, method: str, scaled, timings: dict[str, float]
     """Scale, solve, polish, scale back and certify; infeasible/failed runs say so."""
     t0 = time.perf_counter()
     nd, units = nondimensionalize(disc)
+    if options.progress:
+        print(f"{method}: interior point on {disc.n_elements} yield cones ...", file=sys.stderr, flush=True)
     status, msg, iters, sigma, xi, u_free, U, lam = scaled(nd)
+    if options.progress:
+        print(f"{method}: {msg} after {iters} iterations, {time.perf_counter() - t0:.1f} s"
+              + ("; polishing" if options.polish else ""), file=sys.stderr, flush=True)
     if status is Status.INFEASIBLE or sigma is None or not np.all(np.isfinite(u_free)):
         timings["total"] = time.perf_counter() - t0
         return _fail(disc, method, status, msg, iters, timings)
@@ -294,14 +305,20 @@ def _finish(disc: Discretization, method: str, scaled, timings: dict[str, float]
         sigma, xi, u_free, U, lam = _back(units, sigma, xi, u_free, U, lam)
         sol = make_solution(disc, method=method, status=status, sigma=sigma, xi=xi, u_free=u_free, U=U,
                             contact_force=lam, iterations=iters, timings=timings, message=message)
-        if best is None or sol.kkt.worst < best.kkt.worst:
+        if best is None or _rank(sol) < _rank(best):
             best = sol
     # the certificate, not the interior point's own verdict, decides
-    if best.kkt.worst <= options.accept:
+    if within_tolerance(best.kkt, options.tol):
         return replace(best, status=Status.CONVERGED)
     verdict = status if status is not Status.CONVERGED else Status.FAILED
     return replace(best, status=verdict,
-                   message=f"{best.message}; certified KKT residual {best.kkt.worst:.1e} above {options.accept:.0e}")
+                   message=f"{best.message}; certified KKT residual {best.kkt.worst:.1e} above tol {options.tol:g}")
+
+
+def _rank(sol: Solution) -> float:
+    """The worst residual, NaN counted as worst of all."""
+    worst = sol.kkt.worst
+    return worst if np.isfinite(worst) else np.inf
 
 
 # ----------------------------------------------------------------------------
@@ -373,8 +390,9 @@ def displacement_program(disc: Discretization):
 def _cvxpy_solve(prob, options: ConicOptions, solver: str = "qdldl"):
     import cvxpy as cp
 
-    kw = dict(tol_gap_abs=options.tol, tol_gap_rel=options.tol, tol_feas=options.tol,
-              tol_ktratio=min(1e-6, options.tol), max_iter=options.max_iter,
+    kw = dict(tol_gap_abs=options.ip_tol, tol_gap_rel=options.ip_tol, tol_feas=options.ip_tol,
+              tol_ktratio=min(1e-6, options.ip_tol), max_iter=options.max_iter,
+              time_limit=float("inf") if options.time_limit is None else options.time_limit,
               direct_solve_method=solver)
     try:
         with warnings.catch_warnings():  # the status says it; no warning on top

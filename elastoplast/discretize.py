@@ -1,4 +1,4 @@
-"""Discrete operators of (2.1): P1 displacements, P0 stresses (MATH.md section 4).
+"""Discrete operators of (2.1): P1 displacements, P0 stresses (docs/math.md).
 
 Everything is vectorised over elements; each global operator is one sparse build.
 Degrees of freedom are numbered ``node * d + component``; ``free`` lists the

@@ -1,7 +1,7 @@
 """Hencky elasto-plastic material in Mandel (orthonormal) vector notation.
 
 Stresses and strains are vectors whose dot product is the tensor contraction
-``sigma : eps`` (MATH.md section 2):
+``sigma : eps`` (docs/math.md):
 
 * 3D: ``(11, 22, 33, sqrt2*23, sqrt2*13, sqrt2*12)``, six components;
 * plane strain: ``(11, 22, 33, sqrt2*12)``, four components, where ``eps33 = 0``
@@ -54,7 +54,7 @@ def von_mises(sigma: np.ndarray) -> np.ndarray:
 class Material:
     """Isotropic elasticity with von Mises yield and linear isotropic hardening.
 
-    ``hardening`` is the modulus H of MATH.md section 2 (uniaxial
+    ``hardening`` is the modulus H of docs/math.md (uniaxial
     ``sigma = sigma_y + H eps_p``); ``hardening == 0`` is perfect plasticity.
     """
 
@@ -94,7 +94,7 @@ class Material:
 def return_mapping(material: Material, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closed-form projection of ``(C eps, 0)`` onto the admissible set D.
 
-    This is the map R of MATH.md section 6, applied to every row of ``eps``
+    This is the map R of docs/certificate.md, applied to every row of ``eps``
     (shape ``(n, k)``), projecting in the energy metric ``[.,.]``::
 
         sigma_tr = C eps,  s = dev sigma_tr,  f = sqrt(3/2)|s| - sigma_y

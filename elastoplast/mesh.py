@@ -2,7 +2,7 @@
 
 A :class:`Mesh` holds node coordinates, simplices (triangles in 2D, tetrahedra in
 3D) and named groups of boundary facets. The contact plane is ``x_d = 0`` with
-the body above it (MATH.md section 1).
+the body above it (docs/math.md).
 """
 
 from __future__ import annotations

@@ -26,7 +26,7 @@ columns are replaced by their diagonal), so the sparse factorisation's
 symbolic analysis is done once; with PARDISO a stale factorisation also serves
 as a preconditioner for conjugate gradients while that is cheaper than
 refactorising (:class:`NewtonOptions`). Every iterate is judged by the KKT
-certificate of MATH.md section 6.
+certificate of docs/certificate.md.
 """
 
 from __future__ import annotations
@@ -34,27 +34,25 @@ from __future__ import annotations
 import ctypes
 import functools
 import os
-import sys
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from .certificate import certify
 from .discretize import Discretization, nondimensionalize
+from .iteration import Monitor, Verdict
 from .material import consistent_tangent
-from .solution import Solution, Status, make_solution, value_displacement_form
+from .options import LOOSEST_TOL, TIGHTEST_TOL, SolverOptions, option
+from .solution import Solution, Status, value_displacement_form
 
 
 @dataclass(frozen=True)
-class NewtonOptions:
-    """Settings of :func:`solve_newton`.
+class NewtonOptions(SolverOptions):
+    """Settings of :func:`solve_newton` (``tol``, ``max_iter``, ``time_limit``,
+    ``progress``: :class:`~elastoplast.options.SolverOptions`).
 
-    ``tol``: stop when every KKT residual of the certificate (each already a
-    residual over its scale, ``eps_abs = 0``) is at most ``tol``.
     ``linear_solver``: ``"pardiso"`` (MKL, via pypardiso), ``"splu"`` (SciPy) or
     ``"auto"`` (PARDISO when installed). Measured on the 3D sphere with 111k
     tetrahedra (52k dofs): PARDISO 0.5 s analysis + 2.1 s factorisation, SciPy's
@@ -69,14 +67,17 @@ class NewtonOptions:
     shared with other jobs one thread avoids OpenMP's busy waiting.
     """
 
-    tol: float = 1e-10
-    max_iter: int = 100
-    linear_solver: str = "auto"
-    reuse_factorization: bool = False
-    load_steps: int = 1
-    threads: int | None = None
-    armijo: float = 1e-4
-    progress: bool = False
+    tol: float = option(1e-10, float, "bound on every relative KKT residual of the answer",
+                        lo=TIGHTEST_TOL, hi=LOOSEST_TOL)
+    max_iter: int = option(100, int, "Newton step limit", lo=1, hi=10_000)
+    linear_solver: str = option("auto", str, "sparse factorisation of the Newton matrix",
+                                choices=("auto", "pardiso", "splu"))
+    reuse_factorization: bool = option(False, bool, "try CG preconditioned by the last factorisation first")
+    load_steps: int = option(1, int, "solve for F/n, 2F/n, ..., F in turn", lo=1, hi=1000)
+    threads: int | None = option(None, int, "MKL threads for PARDISO (none: MKL's default)", lo=1, hi=1024,
+                                 none=True, persist=False)
+    armijo: float = option(1e-4, float, "sufficient-decrease constant of the line search", lo=0.0, hi=0.5,
+                           lo_open=True)
 
 
 # ----------------------------------------------------------------------------
@@ -446,12 +447,14 @@ def line_search(disc, cdofs, lower, st, direction, armijo):
 def solve_newton(disc: Discretization, options: NewtonOptions = NewtonOptions(), warm_start: Solution | None = None) -> Solution:
     """Projected semismooth Newton on (D); see the module docstring.
 
-    Works on the nondimensionalised problem; the certificate of the returned
-    solution is evaluated on ``disc``.
+    Works on the nondimensionalised problem; every iterate is judged by
+    :class:`~elastoplast.iteration.Monitor` (the certificate), intermediate load
+    steps to ``max(tol, 1e-4)``.
     """
     t_start = time.perf_counter()
     timings = {"setup": 0.0, "assembly": 0.0, "factorization": 0.0, "solve": 0.0, "line_search": 0.0, "certificate": 0.0}
     nd, units = nondimensionalize(disc)
+    monitor = Monitor("newton", disc, nd, units, options, t_start=t_start)
     lay = hessian_layout(nd)
     linear = SPDSolver(lay, options.linear_solver, options.threads)
     cdofs = lay.contact_dofs
@@ -465,66 +468,41 @@ def solve_newton(disc: Discretization, options: NewtonOptions = NewtonOptions(),
         y = project(y, cdofs, lower)
     else:
         y = np.zeros(nd.n_free + 1)
-    history: list[dict] = []
-    steps = max(1, int(options.load_steps))
-    iteration = 0
+    steps = options.load_steps
+    iteration, info = 0, {}
     costs = {"factored": False}
-    status, message = Status.MAX_ITERATIONS, f"Newton: {options.max_iter} iterations without reaching tol {options.tol:g}"
-    for step in range(1, steps + 1):
-        target = nd.with_force(nd.force * step / steps)
-        tol = options.tol if step == steps else max(options.tol, 1e-4)
-        st = evaluate(target, cdofs, y)
-        while True:
-            t0 = time.perf_counter()
-            kkt = certify(target, st.sigma, st.xi, target.full_displacement(st.u), st.U)
-            timings["certificate"] += time.perf_counter() - t0
-            record = {"iteration": iteration, "load_step": step, "kkt": kkt.as_dict(), "kkt_worst": kkt.worst,
-                      "U": st.U * units.displacement, "energy": st.energy,
-                      "n_active": int(np.sum(target.N @ st.u + target.psi - st.U <= 0.0)),
-                      "n_plastic": int(st.plastic.sum()), "elapsed": time.perf_counter() - t_start}
-            if history and history[-1]["iteration"] == iteration:
-                history[-1].update(record)
-            else:
-                history.append(record)
-            if options.progress:
-                print(f"newton {iteration:3d}  kkt {kkt.worst:.2e}  U {record['U']:.6g}  active {record['n_active']}"
-                      f"  plastic {record['n_plastic']}", file=sys.stderr)
-            if kkt.worst <= tol or iteration >= options.max_iter:
+    try:
+        for step in range(1, steps + 1):
+            target = nd.with_force(nd.force * step / steps)
+            tol = options.tol if step == steps else max(options.tol, 1e-4)
+            st = evaluate(target, cdofs, y)
+            while True:
+                t0 = time.perf_counter()
+                verdict = monitor.check(iteration, st.sigma, st.xi, st.u, st.U, tol=tol, nd=target, load_step=step,
+                                        energy=st.energy, **info)
+                timings["certificate"] += time.perf_counter() - t0
+                if verdict is not None:
+                    break
+                iteration += 1
+                try:
+                    direction, info = newton_direction(lay, linear, st, cdofs, lower, target.volumes, elastic,
+                                                       monitor.last.worst, options, costs, timings)
+                except np.linalg.LinAlgError as exc:
+                    verdict = Verdict(Status.FAILED, f"Newton: {exc}")
+                    break
+                t0 = time.perf_counter()
+                accepted, alpha = line_search(target, cdofs, lower, st, direction, options.armijo)
+                timings["line_search"] += time.perf_counter() - t0
+                info["step"] = alpha
+                if accepted is None:
+                    verdict = Verdict(Status.FAILED, "Newton: line search failed (no decrease of the energy along "
+                                                     "the direction)")
+                    break
+                st = accepted
+            if verdict.status is not Status.CONVERGED:
                 break
-            iteration += 1
-            try:
-                direction, info = newton_direction(lay, linear, st, cdofs, lower, target.volumes, elastic,
-                                                   kkt.worst, options, costs, timings)
-            except np.linalg.LinAlgError as exc:
-                status, message = Status.FAILED, f"Newton: {exc}"
-                break
-            t0 = time.perf_counter()
-            accepted, alpha = line_search(target, cdofs, lower, st, direction, options.armijo)
-            timings["line_search"] += time.perf_counter() - t0
-            history.append({"iteration": iteration, **info, "step": alpha})
-            if accepted is None:
-                status, message = Status.FAILED, "Newton: line search failed (no decrease of the energy along the direction)"
-                break
-            st = accepted
-        if status is Status.FAILED or kkt.worst > tol:
-            break
-        y = st.y
-    if kkt.worst <= options.tol and status is not Status.FAILED:
-        status, message = Status.CONVERGED, f"Newton: KKT residuals <= {options.tol:g} after {iteration} iterations"
-    linear.release()
-    timings["total"] = time.perf_counter() - t_start
-    return make_solution(
-        disc, method="newton", status=status, sigma=st.sigma * units.stress, xi=st.xi * units.stress,
-        u_free=st.u * units.displacement, U=st.U * units.displacement, iterations=iteration, timings=timings,
-        message=message, history=history,
-    )
-
-
-def newton_method(disc: Discretization, tol: float | None = None, max_iter: int | None = None,
-                  progress: bool = False, **options: Any) -> Solution:
-    """The ``"newton"`` entry of the method registry: keyword options to
-    :class:`NewtonOptions`; keywords it does not know (``rho``) are ignored."""
-    known = set(NewtonOptions.__dataclass_fields__)
-    kw = {k: v for k, v in options.items() if k in known}
-    kw.update({k: v for k, v in (("tol", tol), ("max_iter", max_iter)) if v is not None})
-    return solve_newton(disc, NewtonOptions(progress=progress, **kw))
+            y = st.y
+    finally:
+        linear.release()
+    return monitor.solution(verdict, st.sigma, st.xi, st.u, st.U, iterations=iteration, timings=timings,
+                            note=f"projected semismooth Newton, {linear.backend}")

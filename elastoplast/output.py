@@ -3,13 +3,19 @@ methods, ``convergence.png``."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import math
+import os
+import shutil
+import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
 from .discretize import Discretization
+from .errors import InputError
 from .material import von_mises
 from .solution import Solution, summary
 
@@ -62,19 +68,103 @@ def write_vtu(path: str | Path, disc: Discretization, sol: Solution) -> None:
     )
 
 
+#: written into every output folder (with the provenance stamp): a folder holding it
+#: is elastoplast's to replace
+OUTPUT_MARKER = ".elastoplast-output.json"
+#: what earlier versions wrote, before the marker existed
+LEGACY_OUTPUTS = frozenset({"summary.json", "solution.vtu", "convergence.png"})
+
+
+def check_output_dir(out_dir: str | Path, field: str = "out") -> Path:
+    """Refuse, before any work, an output folder that cannot receive results.
+
+    It may not exist yet (it is created, with its parents), or be empty, or
+    hold an earlier elastoplast output (which the new run replaces whole). A
+    file, a folder with other files, the working directory itself or one of
+    its ancestors, and a place where nothing can be written are refused.
+    """
+    out = Path(out_dir).expanduser().absolute()
+    if out.exists() and not out.is_dir():
+        raise InputError(field, f"{out_dir} exists and is not a folder")
+    cwd = Path.cwd().resolve()
+    if out.exists() and (out.resolve() == cwd or out.resolve() in cwd.parents):
+        raise InputError(field, f"{out_dir} is the working directory or contains it; name a subfolder")
+    if out.is_dir():
+        try:
+            names = sorted(p.name for p in out.iterdir())
+        except OSError as exc:
+            raise InputError(field, f"cannot read {out_dir}: {exc.strerror}") from None
+        if names and OUTPUT_MARKER not in names and not set(names) <= LEGACY_OUTPUTS:
+            shown = ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
+            raise InputError(field, f"{out_dir} holds files elastoplast did not write ({shown}); "
+                                    "name a new or empty folder")
+    ancestor = out.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise InputError(field, f"cannot create {out_dir}: {ancestor} is not a folder")
+    try:  # the only sure test of writability is to write
+        os.rmdir(tempfile.mkdtemp(prefix=".elastoplast-probe-", dir=ancestor))
+    except OSError as exc:
+        raise InputError(field, f"cannot create {out_dir}: {ancestor} is not writable ({exc.strerror})") from None
+    return out
+
+
+@contextlib.contextmanager
+def staged_output(out_dir: str | Path, field: str = "out") -> Iterator[Path]:
+    """A fresh folder to write a run's files into, put in place of ``out_dir`` at the end.
+
+    The files appear together: they are written beside ``out_dir`` under a
+    temporary name, and renamed into place when the block ends without an
+    exception (an earlier output in ``out_dir`` is moved aside first and then
+    deleted, so the folder holds only the new run's files). On an exception
+    the temporary folder is removed and ``out_dir`` is left as it was.
+    """
+    from .provenance import stamp
+
+    out = check_output_dir(out_dir, field)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    except OSError as exc:
+        raise InputError(field, f"cannot create {out_dir}: {exc.strerror}") from None
+    try:
+        yield tmp
+        (tmp / OUTPUT_MARKER).write_text(json_text({"provenance": stamp()}))
+        if out.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+            os.replace(out, old / out.name)
+            os.replace(tmp, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
 def write_results(out_dir: str | Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None) -> dict:
-    """Write ``solution.vtu`` and ``summary.json`` into ``out_dir``; returns the summary."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    write_vtu(out / "solution.vtu", disc, sol)
+    """Write ``solution.vtu``, ``summary.json`` and (for iterative methods)
+    ``convergence.png`` into ``out_dir``, which then holds nothing else but the
+    marker (:func:`staged_output`); returns the summary."""
+    with staged_output(out_dir) as tmp:
+        return write_files(tmp, disc, sol, extra)
+
+
+def write_files(folder: Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None) -> dict:
+    """The files of :func:`write_results`, written into an existing folder."""
+    from .provenance import stamp
+
+    write_vtu(folder / "solution.vtu", disc, sol)
     data = summary(disc, sol)
     if sol.history:
         data["history"] = sol.history
     if extra:
         data.update(extra)
-    (out / "summary.json").write_text(json.dumps(data, indent=2, default=json_default) + "\n")
+    data["provenance"] = stamp()
+    (folder / "summary.json").write_text(json_text(data))
     if sol.history:
-        plot_convergence(out / "convergence.png", sol.history, f"{sol.method}: {sol.status.value}")
+        plot_convergence(folder / "convergence.png", sol.history, f"{sol.method}: {sol.status.value}")
     return data
 
 
@@ -124,3 +214,22 @@ def json_default(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     raise TypeError(f"cannot write {type(obj).__name__} to JSON")
+
+
+def strict(obj: Any) -> Any:
+    """``obj`` with numpy values made plain and every NaN or infinity made ``None``:
+    JSON has no NaN (``json.dumps`` would write ``NaN``, which strict readers refuse)."""
+    if isinstance(obj, dict):
+        return {str(k): strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [strict(v) for v in obj]
+    if isinstance(obj, (np.ndarray, np.generic)):
+        return strict(json_default(obj))
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def json_text(data: Any) -> str:
+    """Strict JSON text (no NaN, no Infinity), indented, ending in a newline."""
+    return json.dumps(strict(data), indent=2, allow_nan=False) + "\n"

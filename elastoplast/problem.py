@@ -167,7 +167,7 @@ def _check_psi(psi: np.ndarray, xp: np.ndarray, what: str, field: str, centre=No
 
 @dataclass(frozen=True)
 class Obstacle:
-    """Rigid body surface ``x_d = -psi(x')`` (MATH.md section 1).
+    """Rigid body surface ``x_d = -psi(x')`` (docs/math.md).
 
     ``shape``: ``sphere`` (3D) / ``cylinder`` (2D): ``R - sqrt(R^2 - |x'-c|^2)``;
     ``paraboloid``: ``|x'-c|^2 / (2R)``; ``flat``: 0; ``expression``: a formula
@@ -215,7 +215,7 @@ class Obstacle:
 
 @dataclass(frozen=True)
 class Problem:
-    """A complete elasto-plastic contact problem (MATH.md sections 1-2)."""
+    """A complete elasto-plastic contact problem (docs/math.md)."""
 
     mesh: Mesh
     material: Material
@@ -459,7 +459,7 @@ def problem_from_dict(data: Mapping, base_dir: str | Path = ".") -> Problem:
     """Build a :class:`Problem` from the nested structure of the TOML format.
 
     The optional ``[solver]`` table is not part of the problem; it is ignored here
-    and read by :func:`solver_settings`.
+    and read by :func:`elastoplast.solvers.solver_settings`.
     """
     _only(data, SECTIONS, "problem")
     for name in ("mesh", "material", "obstacle", "load"):
@@ -477,52 +477,6 @@ def problem_from_dict(data: Mapping, base_dir: str | Path = ".") -> Problem:
     if not force > 0:
         raise InputError("load.force", f"must be > 0, got {force!r}")
     return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle, force=force)
-
-
-SOLVER_KEYS = ("method", "tol", "max_iter", "rho")
-DEFAULT_METHOD = "conic"
-
-
-def solver_settings(section: Mapping[str, Any], prefix: str = "solver") -> tuple[str, dict[str, Any]]:
-    """``(method, options)`` from a ``[solver]`` table; the method must be registered now."""
-    from .solvers import METHODS
-
-    if not isinstance(section, Mapping):
-        raise InputError(prefix, f"must be a table, got {_short(section)}")
-    unknown = sorted(set(section) - set(SOLVER_KEYS), key=str)
-    if unknown:
-        raise InputError(f"{prefix}.{unknown[0]}", f"unknown key (allowed: {list(SOLVER_KEYS)})")
-    method = section.get("method", DEFAULT_METHOD)
-    if not isinstance(method, str) or method not in METHODS:
-        raise InputError(f"{prefix}.method", f"unknown method {_short(method)} (choose from {sorted(METHODS)})")
-    return method, check_solver_options({k: v for k, v in section.items() if k != "method"}, prefix)
-
-
-MAX_ITER_LIMIT = 2**31 - 1  # Clarabel takes a 32-bit iteration count
-
-
-def check_solver_options(options: Mapping[str, Any], prefix: str = "solver") -> dict[str, Any]:
-    """Checked ``tol`` (in (0, 1): residuals are relative, 1 would accept anything),
-    ``rho`` (> 0) and ``max_iter`` (an integer in [1, 2**31 - 1]); None values are
-    dropped. Also for command-line flags (``prefix="arguments"``)."""
-    out: dict[str, Any] = {}
-    for key, val in options.items():
-        if val is None:
-            continue
-        if key in ("tol", "rho"):
-            f = _finite(val)
-            if f is None or not f > 0 or (key == "tol" and not f < 1):
-                rule = "a number in (0, 1)" if key == "tol" else "a finite number > 0"
-                raise InputError(f"{prefix}.{key}", f"must be {rule}, got {_short(val)}")
-            out[key] = f
-        elif key == "max_iter":
-            if (isinstance(val, (bool, np.bool_)) or not isinstance(val, numbers.Integral)
-                    or not 1 <= val <= MAX_ITER_LIMIT):
-                raise InputError(f"{prefix}.max_iter", f"must be an integer in [1, {MAX_ITER_LIMIT}], got {_short(val)}")
-            out[key] = int(val)
-        else:
-            raise InputError(f"{prefix}.{key}", f"unknown option (allowed: tol, rho, max_iter)")
-    return out
 
 
 MAX_PROBLEM_BYTES = 16 * 2**20  # a problem file is a few hundred bytes

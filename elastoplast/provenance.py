@@ -6,13 +6,15 @@ figure can always be traced to the code that produced it.
 
 from __future__ import annotations
 
+import argparse
 import datetime as _dt
+import json
 import os
 import platform
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 
 def _git(*args: str, cwd: Path) -> str | None:
@@ -62,3 +64,87 @@ def stamp_line(s: dict[str, Any]) -> str:
     commit = (s.get("commit") or "unknown")[:10] + (" (uncommitted changes)" if s.get("dirty") else "")
     return (f"Recorded by `{s.get('command')}` on {s.get('date')}: elastoplast {s.get('package_version')}, "
             f"commit {commit}, Python {s.get('python')}, {s.get('machine')}.")
+
+
+# ----------------------------------------------------------------------------
+# benchmark records: <name>.json with a top-level stamp, <name>.md opening with it
+# (the convention of benchmarks/README.md, one piece of code for every script)
+# ----------------------------------------------------------------------------
+
+#: the head line of a report whose figures were recorded before stamps existed
+UNSTAMPED_LINE = ("Recorded before stamping (commit unknown): the package version and commit that "
+                  "produced these figures were not recorded.")
+
+
+def script_command() -> str:
+    """The running command as ``python <script> <args>``, the script's path taken
+    relative to the repository when it lies inside it (as the READMEs write it)."""
+    script = Path(sys.argv[0]).resolve()
+    root = Path(__file__).resolve().parents[1]
+    shown = script.relative_to(root) if script.is_relative_to(root) else Path(sys.argv[0])
+    return " ".join(["python", shown.as_posix(), *sys.argv[1:]])
+
+
+def record_parser(doc: str, quick: str = "small cases") -> argparse.ArgumentParser:
+    """The command line every benchmark script shares: ``--quick`` (``quick``
+    describes what it runs), ``--out DIR`` and ``--report``; ``doc`` is the
+    script's docstring, shown by ``--help``."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help=f"{quick}, written into quick/ unless --out is given")
+    ap.add_argument("--out", help="output directory (default: the script's folder; --quick: quick/ below it)")
+    ap.add_argument("--report", action="store_true",
+                    help="only render the report (and plots) again from the recorded JSON")
+    return ap
+
+
+def record_dir(topic: str | Path, quick: bool, out: str | Path | None = None) -> Path:
+    """Where a benchmark script writes: ``out`` when given, else ``<topic>/quick/``
+    for a quick run (never committed), else the topic folder itself. Created."""
+    path = Path(out) if out is not None else Path(topic) / "quick" if quick else Path(topic)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def record_paths(out_dir: str | Path, study: str | None = None) -> tuple[Path, Path]:
+    """``(results.json, REPORT.md)`` of a folder's main script, or
+    ``(<study>.json, <study>.md)`` of a side study."""
+    out = Path(out_dir)
+    if study is None:
+        return out / "results.json", out / "REPORT.md"
+    return out / f"{study}.json", out / f"{study}.md"
+
+
+def report_text(title: str, results: dict[str, Any], body: str) -> str:
+    """A report: ``# title``, the stamp line of ``results["stamp"]`` (or
+    :data:`UNSTAMPED_LINE` when the record has none), then ``body``."""
+    s = results.get("stamp")
+    head = stamp_line(s) if s else UNSTAMPED_LINE
+    return f"# {title}\n\n{head}\n\n{body.strip()}\n"
+
+
+def write_record(out_dir: str | Path, results: dict[str, Any], title: str,
+                 render: Callable[[dict[str, Any]], str], study: str | None = None,
+                 command: str | None = None) -> dict[str, Any]:
+    """Stamp ``results`` now and write the JSON record and its Markdown report.
+
+    ``render(results)`` gives the report's body (tables and key ratios of the
+    JSON). ``command`` defaults to :func:`script_command`. Returns the stamped
+    results as written.
+    """
+    from .output import json_default
+
+    stamped = {"stamp": stamp(command if command is not None else script_command()), **results}
+    json_path, md_path = record_paths(out_dir, study)
+    json_path.write_text(json.dumps(stamped, indent=1, default=json_default) + "\n")
+    md_path.write_text(report_text(title, stamped, render(stamped)))
+    return stamped
+
+
+def rewrite_report(out_dir: str | Path, title: str, render: Callable[[dict[str, Any]], str],
+                   study: str | None = None) -> dict[str, Any]:
+    """Render the Markdown report again from the recorded JSON (whatever stamp it
+    has, or none); the JSON is left as it is. Returns the recorded results."""
+    json_path, md_path = record_paths(out_dir, study)
+    results = json.loads(json_path.read_text())
+    md_path.write_text(report_text(title, results, render(results)))
+    return results

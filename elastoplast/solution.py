@@ -21,6 +21,7 @@ PLASTIC_SHARE = 1.0 - 1e-6
 class Status(enum.Enum):
     CONVERGED = "converged"
     MAX_ITERATIONS = "max_iterations"
+    TIME_LIMIT = "time_limit"
     DIVERGED = "diverged"
     INFEASIBLE = "infeasible"
     FAILED = "failed"
@@ -149,6 +150,10 @@ def make_solution(
         pressure = np.where(disc.contact_area > 0, lam / disc.contact_area, np.nan)
     active = lam > ACTIVE_FORCE_SHARE * max(lam.max(initial=0.0), 0.0)
     plastic = von_mises(sigma) >= PLASTIC_SHARE * (disc.material.yield_stress + xi)
+    finite = all(np.all(np.isfinite(a)) for a in (sigma, xi, u, lam)) and np.isfinite(U)
+    if status is Status.CONVERGED and not (finite and np.isfinite(kkt.worst)):
+        status = Status.FAILED
+        message = f"{message}; the answer holds non-finite values" if message else "the answer holds non-finite values"
     return Solution(
         method=method,
         status=status,
@@ -188,7 +193,7 @@ def summary(disc: Discretization, sol: Solution) -> dict[str, Any]:
         "duality_gap": sol.duality_gap,
         "value_S": sol.value_S,
         "value_D": sol.value_D,
-        "max_contact_pressure": float(np.nanmax(sol.contact_pressure)),
+        "max_contact_pressure": _max_finite(sol.contact_pressure),
         "contact_radius": contact_radius(disc, sol.active, sol.contact_pressure),
         "n_active_contact_nodes": int(sol.active.sum()),
         "plastic_volume_fraction": float(vol[sol.plastic].sum() / vol.sum()),
@@ -199,3 +204,9 @@ def summary(disc: Discretization, sol: Solution) -> dict[str, Any]:
         "dim": disc.dim,
         "gaps_min": float(gaps(disc, disc.free_displacement(sol.u), sol.U).min()),
     }
+
+
+def _max_finite(values: np.ndarray) -> float:
+    """The largest finite value (NaN when there is none)."""
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else float("nan")

@@ -195,9 +195,9 @@ def atomic_write(path: str | Path, data: bytes) -> None:
 
 
 def _json_bytes(data: Any) -> bytes:
-    from .output import json_default  # numpy scalars and arrays, as in summary.json
+    from .output import json_text  # strict JSON, as in summary.json
 
-    return (json.dumps(data, indent=2, default=json_default) + "\n").encode()
+    return json_text(data).encode()
 
 
 def _npz_bytes(arrays: Mapping[str, np.ndarray]) -> bytes:
@@ -275,6 +275,17 @@ class Store:
         con.row_factory = sqlite3.Row
         return con
 
+    @contextmanager
+    def _readable(self, what: str) -> Iterator[None]:
+        """Turn a damaged store (not SQLite, missing or garbled case files) into an InputError."""
+        try:
+            yield
+        except InputError:
+            raise
+        except (sqlite3.DatabaseError, OSError, ValueError, KeyError, EOFError) as exc:
+            raise InputError("store", f"{self.path} is damaged: cannot read {what} "
+                                      f"({type(exc).__name__}: {exc})") from None
+
     # -- reading ----------------------------------------------------------------
 
     def exists(self) -> bool:
@@ -285,7 +296,7 @@ class Store:
         if not self.exists():
             return []
         sql = "SELECT * FROM cases" + (f" WHERE {where}" if where else "") + " ORDER BY finished_at, id"
-        with closing(self._connect()) as con:
+        with self._readable(self.index_path.name), closing(self._connect()) as con:
             return [dict(r) for r in con.execute(sql, params)]
 
     def row(self, case_id: str) -> dict[str, Any]:
@@ -297,9 +308,10 @@ class Store:
     def load_input(self, case_id: str) -> ResolvedInput:
         """The stored resolved input; refuses a case whose files do not hash to its id."""
         folder = self.case_dir(case_id)
-        spec = json.loads((folder / "input.json").read_text())["input"]
-        with np.load(folder / "mesh.npz") as z:
-            arrays = {k: z[k] for k in z.files}
+        with self._readable(f"the input of case {case_id}"):
+            spec = json.loads((folder / "input.json").read_text())["input"]
+            with np.load(folder / "mesh.npz") as z:
+                arrays = {k: z[k] for k in z.files}
         inp = ResolvedInput(spec=spec, arrays=arrays)
         if inp.case_id != case_id:
             raise InputError("case", f"{folder} does not hash to its id (files changed after the run)")
@@ -323,9 +335,10 @@ class Store:
         if row["status"] == ERROR:
             raise InputError("case", f"case {case_id} has no solution: its run raised ({row['error']})")
         folder = self.case_dir(case_id)
-        data = json.loads((folder / "summary.json").read_text())
-        with np.load(folder / "solution.npz") as z:
-            arr = {k: z[k] for k in z.files}
+        with self._readable(f"the solution of case {case_id}"):
+            data = json.loads((folder / "summary.json").read_text())
+            with np.load(folder / "solution.npz") as z:
+                arr = {k: z[k] for k in z.files}
         if recertify:
             from .discretize import discretize
 
@@ -351,8 +364,15 @@ class Store:
     @contextmanager
     def writer(self) -> Iterator["Store"]:
         """Lock the store, create the index if needed and sweep temporary folders."""
-        (self.path / "cases").mkdir(parents=True, exist_ok=True)
-        lock = open(self.path / ".lock", "w")
+        if self.path.exists() and not self.path.is_dir():
+            raise InputError("out", f"{self.path} exists and is not a folder")
+        if self.path.is_dir() and not self.exists() and {p.name for p in self.path.iterdir()} - {"cases", ".lock"}:
+            raise InputError("out", f"{self.path} is not empty and holds no campaign store (no index.sqlite)")
+        try:
+            (self.path / "cases").mkdir(parents=True, exist_ok=True)
+            lock = open(self.path / ".lock", "w")
+        except OSError as exc:
+            raise InputError("out", f"cannot write the store {self.path}: {exc.strerror}") from None
         try:
             try:
                 fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -361,7 +381,7 @@ class Store:
             for tmp in (self.path / "cases").glob(".tmp-*"):
                 shutil.rmtree(tmp, ignore_errors=True)
             cols = ", ".join(f'"{n}" {t}' for n, t in _COLUMNS)
-            with closing(self._connect()) as con, con:
+            with self._readable(self.index_path.name), closing(self._connect()) as con, con:
                 con.execute(f"CREATE TABLE IF NOT EXISTS cases ({cols})")
                 have = {r["name"] for r in con.execute("PRAGMA table_info(cases)")}
                 for n, t in _COLUMNS:  # columns a newer version added (e.g. a new KKT residual)

@@ -1,4 +1,4 @@
-"""Uzawa's method of the paper (MATH.md section 7): two projections per iteration.
+"""Uzawa's method of the paper (docs/methods.md): two projections per iteration.
 
 Starting from ``(u^0, U^0)`` in K_h, iteration n does
 
@@ -10,7 +10,7 @@ Starting from ``(u^0, U^0)`` in K_h, iteration n does
   (plus 1 for V). G is factored once (:func:`factorize_metric`); the
   projection is a small QP in the contact multipliers (:func:`solve_contact_qp`).
 
-The iteration stops on the KKT residuals of the certificate (MATH.md section 6)
+The iteration stops on the KKT residuals of the certificate (docs/certificate.md)
 evaluated at the candidate ``(R(eps(u^n)), u^n, U^n)``, never on the step length.
 Every function works on plain arrays and a factor so that accelerated variants
 can reuse the steps. The loop runs in the O(1) units of
@@ -29,46 +29,14 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .certificate import KKTResiduals, certify
 from .discretize import Discretization, Units, nondimensionalize
 from .errors import InputError
-from .material import Material, return_mapping, von_mises
-from .solution import ACTIVE_FORCE_SHARE, PLASTIC_SHARE, Solution, Status, make_solution
+from .iteration import DIVERGENCE_FACTOR, Monitor
+from .material import Material, return_mapping
+from .options import MAX_ITER_CEILING, SolverOptions, option
+from .solution import Solution
 
 Solve = Callable[[np.ndarray], np.ndarray]
-
-
-@dataclass(frozen=True)
-class UzawaOptions:
-    """Settings of :func:`solve_uzawa`.
-
-    ``rho``: the step, in 1/stress (``None``: :func:`default_rho`); it must lie
-    in ``(0, 2 / lambda_max(C))``. ``tol``: bound on every relative residual of
-    the certificate (:func:`within_tolerance`). ``check_every``: iterations
-    between certificate evaluations, history rows are written at those;
-    ``None`` picks it from the measured cost of one certificate against one
-    iteration so that checking costs at most about a quarter of the run.
-    ``initial``: warm start from a previous solution of the same
-    discretisation (any force). ``factorization``: a key of
-    :data:`FACTORIZATIONS` or ``"auto"``. ``rigid_weight``: see
-    :func:`contact_operators`.
-    """
-
-    rho: float | None = None
-    tol: float = 1e-6
-    max_iter: int = 5000
-    check_every: int | None = None
-    initial: Solution | None = None
-    progress: bool = False
-    factorization: str = "auto"
-    #: weight w of the rigid body's displacement in the metric ``|eps(v)|^2 + w V^2``,
-    #: in the problem's units (length^(d-2)); None: automatic (:func:`contact_operators`);
-    #: 1.0 is the paper's literal metric
-    rigid_weight: float | None = None
-    #: a residual this many times above the first one means divergence
-    divergence_factor: float = 1e8
-    #: at most this many iterations between checks when ``check_every`` is automatic
-    max_check_interval: int = 10
 
 
 # ----------------------------------------------------------------------------
@@ -77,12 +45,12 @@ class UzawaOptions:
 
 
 def rho_bound(material: Material) -> float:
-    """The paper's convergence bound ``2 / lambda_max(C)`` (MATH.md section 7)."""
+    """The paper's convergence bound ``2 / lambda_max(C)`` (docs/methods.md)."""
     return 2.0 / material.max_stiffness_eigenvalue()
 
 
 #: default step as a share of the bound 2 / lambda_max(C); the rho sweep of
-#: benchmarks/uzawa (RESULTS.md) found the iteration count falling monotonically
+#: benchmarks/uzawa (REPORT.md) found the iteration count falling monotonically
 #: up to the bound, on 2D and 3D problems, elastic-dominated and plastic alike
 DEFAULT_RHO_SHARE = 0.95
 
@@ -99,7 +67,7 @@ def check_rho(rho: float, material: Material, field: str = "rho") -> float:
         raise InputError(
             field,
             f"must lie in (0, 2/lambda_max(C)) = (0, {bound:.6g}) for Uzawa to converge "
-            f"(lambda_max(C) = E/(1-2nu) = {material.max_stiffness_eigenvalue():.6g}); got {rho!r}",
+            f"(lambda_max(C) = max(3K, 2mu) = {material.max_stiffness_eigenvalue():.6g}); got {rho!r}",
         )
     return float(rho)
 
@@ -169,13 +137,48 @@ FACTORIZATIONS: dict[str, Callable[[sp.spmatrix], Solve]] = {
     "pypardiso": _factor_pypardiso,
     "qdldl": _factor_qdldl,
 }
-#: "auto" choice, measured in benchmarks/uzawa/components.json: on the 3D sphere with
+#: "auto" choice, measured in benchmarks/uzawa/components.md: on the 3D sphere with
 #: 52,728 tetrahedra (G: 24,375 rows, 958k nonzeros) PARDISO factors 3-6x faster than
 #: SuperLU and CHOLMOD (cholespy), which decides the setup; below about half a million
 #: nonzeros cholespy is the fastest and PARDISO's fixed cost (0.3-2 s to locate and start
 #: MKL) dominates. Each list is tried in order among the installed packages.
 AUTO_LARGE_NNZ = 500_000
 AUTO_ORDER = {"small": ("cholespy", "splu"), "large": ("pypardiso", "cholespy", "splu")}
+
+
+@dataclass(frozen=True)
+class UzawaOptions(SolverOptions):
+    """Settings of :func:`solve_uzawa` (``tol``, ``max_iter``, ``time_limit``,
+    ``progress``: :class:`~elastoplast.options.SolverOptions`).
+
+    ``rho``: the step, in 1/stress (``None``: :func:`default_rho`); it must lie
+    in ``(0, 2 / lambda_max(C))``, checked against the material at solve time.
+    ``check_every``: iterations between certificate evaluations, history rows
+    are written at those; ``None`` picks it from the measured cost of one
+    certificate against one iteration so that checking costs at most about a
+    quarter of the run. ``initial``: warm start from a previous solution of
+    the same discretisation (any force). ``factorization``: a key of
+    :data:`FACTORIZATIONS` or ``"auto"``. ``rigid_weight``: see
+    :func:`contact_operators`.
+    """
+
+    max_iter: int = option(5000, int, "iteration limit", lo=1, hi=MAX_ITER_CEILING)
+    rho: float | None = option(None, float, "step in 1/stress (none: 0.95 * 2/lambda_max(C))", lo=0.0, lo_open=True,
+                               none=True)
+    check_every: int | None = option(None, int, "iterations between certificate checks (none: automatic)", lo=1,
+                                     hi=MAX_ITER_CEILING, none=True)
+    initial: Any = option(None, object, "warm start: a Solution of the same discretisation", none=True, persist=False)
+    factorization: str = option("auto", str, "sparse factorisation of the metric G",
+                                choices=("auto", *FACTORIZATIONS))
+    #: weight w of the rigid body's displacement in the metric ``|eps(v)|^2 + w V^2``,
+    #: in the problem's units (length^(d-2)); None: automatic (:func:`contact_operators`);
+    #: 1.0 is the paper's literal metric
+    rigid_weight: float | None = option(None, float, "weight of V in the metric (none: automatic)", lo=0.0,
+                                        lo_open=True, none=True)
+    divergence_factor: float = option(DIVERGENCE_FACTOR, float, "a residual this many times above the first "
+                                      "one means divergence", lo=0.0, lo_open=True)
+    max_check_interval: int = option(10, int, "most iterations between checks when check_every is automatic",
+                                     lo=1, hi=1000)
 
 
 def factorize_metric(G: sp.spmatrix, method: str = "auto") -> Solve:
@@ -214,7 +217,7 @@ def contact_operators(N: sp.spmatrix, solve: Solve, weight: float | None = None)
     carry different units (length^3 against length^2), so the weight of V is
     a choice. ``weight=None`` takes ``1 / w = 10 trace(N G^{-1} N^T)``: V then
     costs nothing next to the contact displacements, which the measured sweep
-    (benchmarks/uzawa/RESULTS.md) found fastest, on a plateau reached a decade
+    (benchmarks/uzawa/weight.md) found fastest, on a plateau reached a decade
     earlier; a weight of 1 in the problem's units is the paper's literal metric.
     """
     Z = solve(N.T.toarray())
@@ -237,7 +240,7 @@ def project_stresses(material: Material, eps: np.ndarray) -> tuple[np.ndarray, n
     """Step (i): ``sigma_hat^{n+1} = R(eps(u^n))`` element by element.
 
     R is the closed-form projection of ``(C eps, 0)`` onto the admissible set D
-    in the energy metric (MATH.md section 6); ``eps`` has shape ``(n_el, k)``.
+    in the energy metric (docs/certificate.md); ``eps`` has shape ``(n_el, k)``.
     """
     sigma, xi, _ = return_mapping(material, eps)
     return sigma, xi
@@ -333,23 +336,6 @@ def project_contact(
 
 
 # ----------------------------------------------------------------------------
-# stopping test
-# ----------------------------------------------------------------------------
-
-
-def within_tolerance(kkt: KKTResiduals, tol: float) -> bool:
-    """Every certificate residual ``|r_i| / s_i <= tol``.
-
-    The certificate already divides each residual by its stated scale ``s_i``
-    (see :class:`~elastoplast.certificate.KKTResiduals`), so this is the test
-    ``|r_i| <= eps_abs + eps_rel * s_i`` with ``eps_rel = tol`` and
-    ``eps_abs = 0``: the residuals carry different units (stress, force,
-    length), so no single absolute floor would mean anything.
-    """
-    return all(value <= tol for value in kkt.as_dict().values())
-
-
-# ----------------------------------------------------------------------------
 # the loop
 # ----------------------------------------------------------------------------
 
@@ -374,37 +360,21 @@ def _check_interval(options: UzawaOptions, t_certificate: float, t_iteration: fl
     return int(min(max(m, 1), options.max_check_interval))
 
 
-def _validate(options: UzawaOptions, material: Material) -> float:
-    """Check the options; returns the step rho."""
-    rho = check_rho(default_rho(material) if options.rho is None else options.rho, material)
-    if isinstance(options.max_iter, bool) or not isinstance(options.max_iter, int) or options.max_iter < 0:
-        raise InputError("max_iter", f"must be a non-negative integer, got {options.max_iter!r}")
-    if not (isinstance(options.tol, (int, float)) and options.tol > 0):
-        raise InputError("tol", f"must be a number > 0, got {options.tol!r}")
-    ce = options.check_every
-    if ce is not None and (isinstance(ce, bool) or not isinstance(ce, int) or ce < 1):
-        raise InputError("check_every", f"must be a positive integer, got {ce!r}")
-    return rho
-
-
 def solve_uzawa(disc: Discretization, options: UzawaOptions = UzawaOptions()) -> Solution:
-    """Uzawa's method (MATH.md section 7) with the certificate as stopping test.
+    """Uzawa's method (docs/methods.md) with the certificate as stopping test.
 
     Iteration n evaluates step (i) at ``u^n``; the certificate is evaluated at
     the candidate ``(R(eps(u^n)), u^n, U^n)`` (whose constitutive residual is
-    zero by construction) and, unless it passes, step (ii) gives ``u^{n+1}``.
-    Status: CONVERGED when :func:`within_tolerance` holds, MAX_ITERATIONS after
-    ``max_iter`` steps (the answer is then the last candidate, with its true
-    residuals), DIVERGED on non-finite values or residuals ``divergence_factor``
-    times above the first.
+    zero by construction) and, unless :class:`~elastoplast.iteration.Monitor`
+    says stop, step (ii) gives ``u^{n+1}``. The answer is the last candidate,
+    with its true residuals, whatever the status.
     """
-    from tqdm.auto import tqdm
-
-    rho = _validate(options, disc.material)
+    rho = check_rho(default_rho(disc.material) if options.rho is None else options.rho, disc.material)
     t_start = time.perf_counter()
     timings = {"setup": 0.0, "stresses": 0.0, "contact": 0.0, "certificate": 0.0}
 
     nd, units = nondimensionalize(disc)
+    monitor = Monitor("uzawa", disc, nd, units, options, divergence_factor=options.divergence_factor, t_start=t_start)
     rho_nd = rho * units.E  # the step in the scaled units, where E = 1
     solve = factorize_metric(metric_matrix(nd), options.factorization)
     weight = None if options.rigid_weight is None else options.rigid_weight / units.length ** (disc.dim - 2)
@@ -414,71 +384,29 @@ def solve_uzawa(disc: Discretization, options: UzawaOptions = UzawaOptions()) ->
     u, U, _ = project_contact(u, U, np.zeros(nd.n_free), 0.0, nd.force, nd.N, nd.psi, solve, ops)
     timings["setup"] = time.perf_counter() - t_start
 
-    history: list[dict[str, Any]] = []
-    status, message, first_worst, interval = Status.MAX_ITERATIONS, "", None, options.check_every or 1
-    bar = tqdm(total=options.max_iter, disable=not options.progress, desc="uzawa", unit="it", leave=False)
-    n = 0
-    try:
-        while True:
-            t0 = time.perf_counter()
-            sigma, xi = project_stresses(nd.material, nd.strain(u))  # step (i)
-            r = nd.internal_force(sigma)
-            t1 = time.perf_counter()
-            timings["stresses"] += t1 - t0
-            if not (np.all(np.isfinite(u)) and np.isfinite(U)):
-                status, message = Status.DIVERGED, f"non-finite iterate at iteration {n}"
+    interval, n = options.check_every or 1, 0
+    while True:
+        t0 = time.perf_counter()
+        sigma, xi = project_stresses(nd.material, nd.strain(u))  # step (i)
+        r = nd.internal_force(sigma)
+        t1 = time.perf_counter()
+        timings["stresses"] += t1 - t0
+        t_check = 0.0
+        if n % interval == 0 or n >= options.max_iter:
+            verdict = monitor.check(n, sigma, xi, u, U)
+            t_check = time.perf_counter() - t1
+            timings["certificate"] += t_check
+            if verdict is not None:
                 break
-            last = n == options.max_iter
-            if n % interval == 0 or last:
-                kkt = certify(nd, sigma, xi, nd.full_displacement(u), U)
-                worst = kkt.worst
-                first_worst = worst if first_worst is None else first_worst
-                lam_c = nd.N @ r
-                history.append({
-                    "iteration": n, "residuals": kkt.as_dict(), "kkt_worst": worst,
-                    "U": U * units.displacement,
-                    "n_active": int(np.sum(lam_c > ACTIVE_FORCE_SHARE * max(lam_c.max(initial=0.0), 0.0))),
-                    "n_plastic": int(np.sum(von_mises(sigma) >= PLASTIC_SHARE * (nd.material.yield_stress + xi))),
-                    "time_s": time.perf_counter() - t_start,
-                })
-                t_check = time.perf_counter() - t1
-                timings["certificate"] += t_check
-                bar.set_postfix(kkt=f"{worst:.1e}", U=f"{U * units.displacement:.5g}", refresh=False)
-                if within_tolerance(kkt, options.tol):
-                    status, message = Status.CONVERGED, f"KKT residuals <= {options.tol:g} after {n} iterations"
-                    break
-                if not np.isfinite(worst) or worst > options.divergence_factor * max(first_worst, options.tol):
-                    status, message = Status.DIVERGED, f"KKT residual {worst:.3g} grew from {first_worst:.3g}"
-                    break
-            if last:
-                message = f"stopped after max_iter = {n} iterations (worst KKT residual {worst:.3g} > tol {options.tol:g})"
-                break
-            t2 = time.perf_counter()
-            u, U, lam = project_contact(u, U, r, rho_nd, nd.force, nd.N, nd.psi, solve, ops, lam)  # step (ii)
-            t3 = time.perf_counter()
-            timings["contact"] += t3 - t2
-            if n == 0:
-                interval = _check_interval(options, t_check, t3 - t0 - t_check)
-            n += 1
-            bar.update(1)
-    finally:
-        bar.close()
-    timings["total"] = time.perf_counter() - t_start
-    return make_solution(
-        disc, method="uzawa", status=status, sigma=sigma * units.stress, xi=xi * units.stress,
-        u_free=u * units.displacement, U=U * units.displacement, iterations=n, timings=timings,
-        message=f"{message} (rho = {rho:.6g}, bound {rho_bound(disc.material):.6g})", history=history,
-    )
-
-
-def uzawa_method(disc: Discretization, tol: float | None = None, max_iter: int | None = None,
-                 rho: float | None = None, progress: bool = False, **options: Any) -> Solution:
-    """The ``"uzawa"`` entry of the method registry: keyword options to :class:`UzawaOptions`;
-    keywords it does not know are ignored."""
-    known = set(UzawaOptions.__dataclass_fields__)
-    kw = {k: v for k, v in options.items() if k in known}
-    kw.update({k: v for k, v in (("tol", tol), ("max_iter", max_iter), ("rho", rho)) if v is not None})
-    return solve_uzawa(disc, UzawaOptions(progress=progress, **kw))
+        t2 = time.perf_counter()
+        u, U, lam = project_contact(u, U, r, rho_nd, nd.force, nd.N, nd.psi, solve, ops, lam)  # step (ii)
+        t3 = time.perf_counter()
+        timings["contact"] += t3 - t2
+        if n == 0:
+            interval = _check_interval(options, t_check, t3 - t0 - t_check)
+        n += 1
+    return monitor.solution(verdict, sigma, xi, u, U, iterations=n, timings=timings,
+                            note=f"rho = {rho:.6g}, bound {rho_bound(disc.material):.6g}")
 
 
 def load_sweep(disc: Discretization, forces: Sequence[float], options: UzawaOptions = UzawaOptions()) -> list[Solution]:

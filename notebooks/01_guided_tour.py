@@ -52,9 +52,10 @@ print(f"{disc.n_elements} tetrahedra, {disc.n_contact} contact nodes; E = {m.E:g
 
 # %% [markdown]
 # ## Two solvers, one certificate
-# The conic reference solves the stress form (S) with an interior-point method; Uzawa's
-# method alternates the return mapping and a projection onto the contact constraints.
-# Both answers go through the same KKT check (MATH.md section 6).
+# The conic reference solves the stress form (S) with an interior-point method and
+# finishes with a few Newton steps; Uzawa's method alternates the return mapping and a
+# projection onto the contact constraints. Both answers go through the same KKT check
+# (`docs/certificate.md`).
 
 # %%
 methods = ["conic"] + (["uzawa"] if "uzawa" in ep.METHODS else [])

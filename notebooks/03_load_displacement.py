@@ -32,7 +32,7 @@ SMALL = os.environ.get("ELASTOPLAST_NOTEBOOK_SMALL") == "1"
 NH = 10 if SMALL else 40
 E, NU, R, SY = 2e5, 0.3, 40.0, 1200.0
 E_star = E / (1 - NU**2)
-# first yield by Green's fit (MATH.md 8): p0 = 1.795 sigma_y, F = pi R p0^2 / E*
+# first yield by Green's fit (docs/validation.md): p0 = 1.795 sigma_y, F = pi R p0^2 / E*
 F_yield = np.pi * R * ((1.164 + 2.975 * NU - 2.906 * NU**2) * SY) ** 2 / E_star
 forces = F_yield * np.geomspace(0.2, 8.0, 5 if SMALL else 14)
 
@@ -90,10 +90,17 @@ plt.show()
 # %% [markdown]
 # ## The plastic zone at the largest force
 # Von Mises stress near the contact; the plastic elements are outlined. At this force the
-# zone has reached the surface and spreads sideways.
+# zone has reached the surface and spreads sideways, and it reaches deep into the 10 mm
+# block (about 8.8 mm at full size): the clamped top now matters, and a study of the
+# half-space would need a larger block. The contact zone must also stay inside the
+# declared Γ0 (here |x| ≤ 4 mm): if its outermost node is active, Γ0 cuts the contact
+# short. On the coarse mesh of small mode it does; at full size it does not.
 
 # %%
 d, s = last
+r = d.contact_radii()
+print(f"plastic zone depth {rows[-1]['depth']:.2f} mm; outermost node of Gamma_0 (r = {r.max():.2f} mm) "
+      f"active: {bool(s.active[np.argmax(r)])}")
 pts = d.mesh.points
 fig, ax = plt.subplots(figsize=(7, 3.5))
 tpc = ax.tripcolor(pts[:, 0], pts[:, 1], d.mesh.cells, facecolors=von_mises(s.sigma), cmap="viridis")

@@ -1,4 +1,11 @@
-"""Small problems shared by the core tests (2D and 3D, plastic zones present)."""
+"""Small problems shared by the core tests (2D and 3D, plastic zones present), and
+the rule that no test writes outside its temporary folder.
+
+Every test runs in its own empty working directory (:func:`in_a_temporary_directory`),
+so whatever it, a notebook or a README snippet writes under a relative path lands
+there. Repository files are reached through :data:`ROOT`, never through a path
+relative to the working directory.
+"""
 
 from __future__ import annotations
 
@@ -12,6 +19,13 @@ import elastoplast as ep
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = ROOT / "problems"
+
+
+@pytest.fixture(autouse=True)
+def in_a_temporary_directory(tmp_path, monkeypatch):
+    """Run each test with ``tmp_path`` as the working directory (the CLI's default
+    ``--out results``, plots and stores written under relative paths go there)."""
+    monkeypatch.chdir(tmp_path)
 
 
 def cylinder_dict(divisions=(40, 20), **material) -> dict:

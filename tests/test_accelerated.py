@@ -32,7 +32,7 @@ MATERIAL = Material(1.0, 0.3, 1200.0 / 200000.0, 1e-3)
 
 def brute_force_prox(m: Material, z: np.ndarray, r: float, M: np.ndarray) -> tuple[np.ndarray, float]:
     """``min_q W(q) + r/2 |q - z|_M^2`` written out with the plastic strain p and
-    kappa (MATH.md section 5, form (D), for one element) and solved by Clarabel:
+    kappa (docs/math.md, form (D), for one element) and solved by Clarabel:
     ``1/2 (q-p) C (q-p) + sigma_y kappa + 1/2 H kappa^2 + r/2 (q-z) M (q-z)``,
     ``tr p = 0``, ``sqrt(2/3) |p| <= kappa``. No return mapping involved."""
     k = z.size

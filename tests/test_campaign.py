@@ -206,10 +206,10 @@ def test_case_failing_at_run_time_is_recorded_while_others_complete(tmp_path, mo
     as failed; the other cases complete. Threads, so the test's method is seen."""
     from distributed import Client, LocalCluster
 
-    def broken(disc, **options):
+    def broken(disc, options):
         raise RuntimeError("forced failure for the test")
 
-    monkeypatch.setitem(ep.solvers.METHODS, "broken", broken)
+    monkeypatch.setitem(ep.solvers.METHODS, "broken", ep.solvers.Method("broken", broken, ep.ConicOptions, "raises"))
     path = write_campaign(tmp_path / "c.toml", 'method = ["conic", "broken"]\n"solver.max_iter" = [1, 200]')
     campaign = cp.load_campaign(path)
     out = tmp_path / "store"
@@ -384,4 +384,4 @@ def test_compare_command_line(reference_store, client, tmp_path, capsys):
         cells = [c.strip() for c in line.strip("|").split("|")]
         assert cells[3] == "converged" and cells[6] == cells[7] == "0.00e+00", line
     assert main([*args, "--method", "no-such-method"]) == 2
-    assert capsys.readouterr().err.startswith("error: compare.method: unknown method 'no-such-method'")
+    assert capsys.readouterr().err.startswith("error: --method: unknown method 'no-such-method'")

@@ -1,4 +1,4 @@
-"""The two conic forms of MATH.md section 5 solve the same problem.
+"""The two conic forms of docs/math.md solve the same problem.
 
 (S) assembled directly for Clarabel, (S) through CVXPY and (D) through CVXPY
 must agree, and value(S) + value(D) = 0 at the optimum (conic duality).
@@ -42,7 +42,7 @@ def test_all_forms_certified(solved):
     for method, sol in sols.items():
         assert sol.converged, (method, sol.message)
         assert sol.kkt.worst < 1e-6, (method, sol.kkt)
-        # the relative gap of conic duality, MATH.md section 5
+        # the relative gap of conic duality, docs/math.md
         assert sol.duality_gap <= 1e-7, (method, sol.duality_gap)
     if "plastic" in name:
         assert sols["conic"].plastic.any()
@@ -69,7 +69,7 @@ def test_forms_agree_before_polishing(solved):
     name, disc, _ = solved
     if "perfect" in name:
         pytest.skip("with H = 0 the displacements need not be unique")
-    raw = ConicOptions(polish=False, tol=1e-12)
+    raw = ConicOptions(polish=False, ip_tol=1e-12)
     s = ep.solve_conic(disc, raw)
     d = ep.solve_conic_displacement(disc, raw)
     assert d.U == pytest.approx(s.U, rel=1e-6)

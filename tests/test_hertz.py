@@ -1,4 +1,4 @@
-"""Hertz contact of a cylinder in plane strain, elastic limit (MATH.md section 8).
+"""Hertz contact of a cylinder in plane strain, elastic limit (docs/validation.md).
 
 b = sqrt(4 F R / (pi E*)), p0 = 2 F / (pi b), E* = E / (1 - nu^2). The block has
 half-width 20 b and height 20 b, so it is large against the contact; clamping

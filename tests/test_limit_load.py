@@ -1,6 +1,6 @@
 """Perfect plasticity: a rigid flat punch in plane strain has a limit load.
 
-Prandtl's limit pressure is (2 + pi) k with k = sigma_y / sqrt 3 (MATH.md
+Prandtl's limit pressure is (2 + pi) k with k = sigma_y / sqrt 3 (docs/
 section 8). The discrete limit load of (2.1) approaches it from above as the
 mesh is refined: benchmarks/validation measured limit/Prandtl = 1.088 and 1.044
 at spacings w/4 and w/8 under the punch (w its width). Here the spacing under

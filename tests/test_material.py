@@ -1,4 +1,4 @@
-"""The constitutive law: return mapping R (MATH.md section 6) and its tangent."""
+"""The constitutive law: return mapping R (docs/certificate.md) and its tangent."""
 
 from __future__ import annotations
 

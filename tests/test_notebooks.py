@@ -1,14 +1,14 @@
 """Every notebook in notebooks/ (jupytext percent-format .py) executes without error.
 
-Run in small mode (ELASTOPLAST_NOTEBOOK_SMALL=1), with the Agg backend, in a
-temporary working directory.
+Run in small mode (ELASTOPLAST_NOTEBOOK_SMALL=1), with the Agg backend; the kernel
+starts in the test's temporary folder, so anything a notebook writes lands there.
 """
-
-from pathlib import Path
 
 import pytest
 
-NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.py"))
+from conftest import ROOT
+
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.py"))
 
 
 def test_notebooks_exist():
@@ -21,7 +21,6 @@ def test_notebook_executes(path, tmp_path, monkeypatch):
     nbclient = pytest.importorskip("nbclient")
     monkeypatch.setenv("ELASTOPLAST_NOTEBOOK_SMALL", "1")
     monkeypatch.setenv("MPLBACKEND", "Agg")
-    monkeypatch.chdir(tmp_path)
     nb = jupytext.read(path)
     nbclient.NotebookClient(nb, timeout=300, kernel_name="python3",
                             resources={"metadata": {"path": str(tmp_path)}}).execute()

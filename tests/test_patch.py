@@ -2,7 +2,7 @@
 
 The sides carry zero normal displacement and the top zero vertical displacement,
 so the exact state is uniaxial strain along x_d, which P1/P0 represent exactly on
-any mesh. Closed form (derived from MATH.md section 2): with axial strain
+any mesh. Closed form (derived from docs/math.md): with axial strain
 ``e = -U / h`` (h the block height), ``M = lam + 2 mu`` and the axial stress
 ``F / A`` in magnitude (A the bottom area, per unit thickness in 2D),
 

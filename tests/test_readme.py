@@ -1,23 +1,67 @@
-"""The README's set-up commands and its Python blocks are what they claim."""
+"""The README's set-up commands and its Python blocks are what they claim, and
+running them from the test suite writes nothing into the repository."""
 
 from __future__ import annotations
 
+import os
 import re
+import shlex
+import shutil
+
+import elastoplast.cli as cli
+from elastoplast.cli import main
+from elastoplast.output import OUTPUT_MARKER
+from elastoplast.problem import read_toml
 
 from conftest import ROOT
+from test_cli import write_toml
 
 README = (ROOT / "README.md").read_text()
+COMMANDS = re.search(r"```\n(.*?)```", README, re.S).group(1).strip().splitlines()
+#: what the repository may gain while tests run: the environment, caches, build metadata
+NOT_SOURCE = {".git", ".venv", "__pycache__", ".pytest_cache", ".ipynb_checkpoints"}
+
+
+def repository_files() -> dict[str, tuple[int, int]]:
+    """``path -> (size, mtime_ns)`` of every file in the repository, caches and the
+    environment aside: a test that writes a file, or overwrites one, changes it."""
+    files = {}
+    for folder, dirs, names in os.walk(ROOT):
+        dirs[:] = [d for d in dirs if d not in NOT_SOURCE and not d.endswith(".egg-info")]
+        for name in names:
+            st = os.stat(os.path.join(folder, name))
+            files[os.path.relpath(os.path.join(folder, name), ROOT)] = (st.st_size, st.st_mtime_ns)
+    return files
 
 
 def test_readme_opens_with_the_two_commands_and_ci_runs_the_second():
-    block = re.search(r"```\n(.*?)```", README, re.S).group(1).strip().splitlines()
-    assert len(block) == 2
-    assert "elastoplast solve" in block[0]
-    assert "pytest" in block[1]
-    assert block[1] in (ROOT / ".ci" / "run").read_text()
+    assert len(COMMANDS) == 2
+    assert "elastoplast solve" in COMMANDS[0]
+    assert "pytest" in COMMANDS[1]
+    assert COMMANDS[1] in (ROOT / ".ci" / "run").read_text()
 
 
-def test_python_blocks_run(monkeypatch):
-    monkeypatch.chdir(ROOT)
+def test_first_command_writes_into_the_working_directory_only(tmp_path, monkeypatch, capsys):
+    """The README's ``elastoplast solve --out results`` (on a coarser copy of the
+    default problem) writes ``results/`` into the test's working directory and
+    leaves every file of the repository as it was."""
+    argv = shlex.split(COMMANDS[0].split("elastoplast ", 1)[1])
+    assert argv[:3] == ["solve", "--out", "results"]
+    data = read_toml(cli.default_problem_path())
+    data["mesh"]["divisions"] = [6, 6, 3]
+    monkeypatch.setattr(cli, "default_problem_path", lambda: write_toml(tmp_path / "default.toml", data))
+    before = repository_files()
+    assert main(argv) == 0
+    capsys.readouterr()
+    after = repository_files()
+    assert sorted(set(after) - set(before)) == []  # no new file
+    assert sorted(p for p in before if after.get(p) != before[p]) == []  # none rewritten
+    assert {p.name for p in (tmp_path / "results").iterdir()} == {"solution.vtu", "summary.json", OUTPUT_MARKER}
+
+
+def test_python_blocks_run(tmp_path):
+    """Each Python block runs from a copy of the folders it names, in the test's
+    working directory (the blocks use paths relative to the repository root)."""
+    shutil.copytree(ROOT / "problems", tmp_path / "problems")
     for code in re.findall(r"```python\n(.*?)```", README, re.S):
         exec(compile(code, "README.md", "exec"), {})

@@ -73,7 +73,7 @@ def test_agrees_with_conic_reference(name):
 
 
 def test_iterations_do_not_grow_with_the_mesh():
-    # MATH.md section 7: the metric G makes the rate mesh independent; issue 3 asks
+    # docs/methods.md: the metric G makes the rate mesh independent; issue 3 asks
     # for counts within a factor 1.5 on three successively refined meshes. The
     # sequence starts where the plastic zone spans tens of elements (the 20 x 10
     # mesh has ten plastic elements, a different problem in all but name).
@@ -90,7 +90,7 @@ def test_iterations_do_not_grow_with_the_mesh():
 @pytest.mark.parametrize("factor", [1.0, 1.5, -0.1, 0.0])
 def test_rho_outside_the_bound_is_refused(factor):
     disc = small("sphere_quarter_3d")
-    # MATH.md section 7: convergence needs 0 < rho < 2 / lambda_max(C), lambda_max(C) = E / (1 - 2 nu)
+    # docs/methods.md: convergence needs 0 < rho < 2 / lambda_max(C), lambda_max(C) = E / (1 - 2 nu)
     m = disc.material
     assert rho_bound(m) == pytest.approx(2 * (1 - 2 * m.nu) / m.E, rel=1e-14)
     with pytest.raises(ep.InputError) as err:
@@ -153,10 +153,15 @@ def test_divergence_test_stops_the_run():
     assert sol.status is ep.Status.DIVERGED
 
 
-def test_unknown_options_are_ignored():
+def test_options_of_other_methods_are_refused():
+    """Issue 9: an option the method does not have is an error naming it, never ignored."""
     disc = small("sphere_quarter_3d")
-    sol = ep.solve(disc, "uzawa", tol=1e-6, max_iter=2000, progress=False, threads=3, verbose=True)
-    assert sol.converged
+    with pytest.raises(ep.InputError) as exc:
+        ep.solve(disc, "uzawa", tol=1e-6, max_iter=2000, threads=3)
+    assert exc.value.field == "threads"
+    with pytest.raises(ep.InputError) as exc:
+        ep.solve(disc, "newton", rho=1e-6)
+    assert exc.value.field == "rho"
 
 
 def test_warm_start_same_answer_fewer_iterations():

@@ -56,7 +56,7 @@ def test_first_yield_ratio_cylinder(cylinder):
     row, refv = cylinder["block_sizes"][0], cylinder["reference"]
     # Green: max vm / p0 = 0.5571 at 0.704 b (nu = 0.3). The finite block raises the ratio:
     # measured +7.2% at L = 10 b (quick run), and about +7-8% at L = 10 b with h_b = b/10 in
-    # the full study (REPORT.md section 2; MATH.md 8 records +5.7% on a uniform mesh).
+    # the full study (REPORT.md section 2; docs/validation.md, finite block).
     excess = row["vm_over_p0"] / refv["green_vm_over_p0"] - 1.0
     assert 0.0 < excess < 0.10
     # depth: measured 0.716 b by the parabola fit (quick run) against Green 0.704 b

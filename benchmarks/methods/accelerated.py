@@ -1,10 +1,11 @@
 """uzawa-fast's two candidates measured against each other and plain Uzawa (issue 4, item 2).
 
     python benchmarks/methods/accelerated.py           # about 5 minutes on 2 cores
-    python benchmarks/methods/accelerated.py --quick   # small meshes, a few cases
+    python benchmarks/methods/accelerated.py --quick   # small meshes, a few cases, into quick/
+    python benchmarks/methods/accelerated.py --report  # only accelerated.md again, from accelerated.json
 
 Writes ``accelerated.json`` and ``accelerated.md`` beside this file (``--out``
-to change). Two parts, all stopping on the certificate (MATH.md section 6):
+to change). Two parts, all stopping on the certificate (docs/certificate.md):
 
 1. the penalty r of ALG2 (both splittings, I and C) on small meshes, iterations
    to KKT <= 1e-8, certificate at every iteration;
@@ -19,10 +20,7 @@ to change). Two parts, all stopping on the certificate (MATH.md section 6):
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -30,6 +28,7 @@ from pathlib import Path
 import elastoplast as ep
 from elastoplast.accelerated import FastOptions, solve_alg2, solve_uzawa_fast
 from elastoplast.problem import problem_from_dict, read_toml
+from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
 from elastoplast.uzawa import UzawaOptions, solve_uzawa
 
 HERE = Path(__file__).resolve().parent
@@ -38,6 +37,7 @@ TOLS = (1e-6, 1e-8)
 CHECK = 5
 #: ALG2 penalties measured in part 2 (C splitting, r in units of the stiffness C)
 PENALTIES = (0.25, 0.4)
+TITLE = "uzawa-fast: FISTA with restart against ALG2 and plain Uzawa"
 
 
 def case(name: str, divisions, hardening_over_E: float, force_factor: float):
@@ -146,21 +146,18 @@ def markdown(res: dict) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true")
-    p.add_argument("--out", default=str(HERE))
-    args = p.parse_args(argv)
+    args = record_parser(__doc__, "a few small cases").parse_args(argv)
+    out = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out, TITLE, markdown, study="accelerated")
+        return 0
     t0 = time.perf_counter()
-    res = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "loadavg_start": os.getloadavg()}}
+    res = {"quick": args.quick, "machine": {"cpus": os.cpu_count(), "loadavg_start": os.getloadavg()}}
     res["sweep"] = penalty_sweep(args.quick)
     res["comparison"] = comparison(args.quick)
     res["machine"]["loadavg_end"] = os.getloadavg()
     res["run_s"] = time.perf_counter() - t0
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    name = "accelerated_quick" if args.quick else "accelerated"
-    (out / f"{name}.json").write_text(json.dumps(res, indent=1))
-    (out / f"{name}.md").write_text(markdown(res))
+    write_record(out, res, TITLE, markdown, study="accelerated")
     print(f"done in {res['run_s']:.0f} s", file=sys.stderr)
     return 0
 

@@ -1,18 +1,19 @@
 """Which linear solver for Newton's systems: one elastic stiffness K of the 3D sphere.
 
     python benchmarks/methods/factorizations.py [NX NY NZ]    # default 24 24 12 (41k tetrahedra)
+    python benchmarks/methods/factorizations.py --quick      # 8 8 4, into quick/ (not committed)
+    python benchmarks/methods/factorizations.py --report     # only factorizations.md again
 
 Times, for the same K (nondimensionalised), PARDISO (SPD, upper triangle:
 analysis, then numerical factorisation alone, as Newton repeats it), SciPy's
 SuperLU (COLAMD), cholespy, QDLDL, and pyamg's smoothed aggregation as a CG
 preconditioner (rigid-body modes as near-null space), each to a relative
-residual of 1e-10. Writes ``factorizations.json`` beside this file.
+residual of 1e-10. Writes ``factorizations.json`` and ``factorizations.md`` beside
+this file (``--out`` to change).
 """
 
 from __future__ import annotations
 
-import json
-import sys
 import time
 from pathlib import Path
 
@@ -23,8 +24,11 @@ import scipy.sparse.linalg as sla
 import elastoplast as ep
 from elastoplast.discretize import _rigid_motions, nondimensionalize
 from elastoplast.problem import problem_from_dict, read_toml
+from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
 
 HERE = Path(__file__).resolve().parent
+TITLE = "Linear solvers for Newton's systems: one elastic stiffness K of the 3D sphere"
+DEFAULT, QUICK = [24, 24, 12], [8, 8, 4]
 
 
 def timed(fn):
@@ -33,9 +37,29 @@ def timed(fn):
     return out, time.perf_counter() - t0
 
 
+def markdown(out: dict) -> str:
+    """The report's body: one row per solver, its phases and residual."""
+    phases = ["analysis_s", "setup_s", "factorization_s", "solve_s"]
+    lines = [f"K: {out['n_elements']} tetrahedra, {out['n_dofs']} dofs, {out['nnz']} nonzeros; right-hand side "
+             "random (seed 0); times in seconds.", "",
+             "| solver | analysis | setup | factorisation | solve | total | CG iterations | residual |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name, row in out["solvers"].items():
+        cells = [f"{row[k]:.3g}" if k in row else "-" for k in phases]
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {sum(row.get(k, 0.0) for k in phases):.3g} "
+                     f"| {row.get('cg_iterations', '-')} | {row['residual']:.1e} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    div = [int(a) for a in argv[:3]] or [24, 24, 12]
+    p = record_parser(__doc__, f"divisions {QUICK}")
+    p.add_argument("divisions", nargs="*", type=int, help=f"mesh divisions NX NY NZ (default {DEFAULT})")
+    args = p.parse_args(argv)
+    out_dir = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out_dir, TITLE, markdown, study="factorizations")
+        return 0
+    div = args.divisions[:3] or (QUICK if args.quick else DEFAULT)
     d = read_toml(HERE.parents[1] / "problems" / "sphere_block_3d.toml")
     d["mesh"]["divisions"] = div
     disc = ep.discretize(problem_from_dict(d, HERE.parents[1] / "problems"))
@@ -43,7 +67,7 @@ def main(argv=None) -> int:
     K = nd.weighted_gram(nd.material.stiffness(3))
     b = np.random.default_rng(0).standard_normal(K.shape[0])
     res = lambda x: float(np.linalg.norm(K @ x - b) / np.linalg.norm(b))  # noqa: E731
-    out = {"n_elements": disc.n_elements, "n_dofs": K.shape[0], "nnz": K.nnz, "solvers": {}}
+    out = {"divisions": div, "n_elements": disc.n_elements, "n_dofs": K.shape[0], "nnz": K.nnz, "solvers": {}}
 
     import pypardiso
 
@@ -87,7 +111,7 @@ def main(argv=None) -> int:
 
     for name, row in out["solvers"].items():
         print(name, {k: round(v, 3) if isinstance(v, float) and v > 1e-3 else v for k, v in row.items()})
-    (HERE / "factorizations.json").write_text(json.dumps(out, indent=1))
+    write_record(out_dir, out, TITLE, markdown, study="factorizations")
     return 0
 
 

@@ -1,9 +1,10 @@
 """Every method on the same problems in one run (issue 4).
 
     python benchmarks/methods/run.py            # full run (about 10-20 minutes on 2 cores)
-    python benchmarks/methods/run.py --quick    # small meshes only (about a minute)
+    python benchmarks/methods/run.py --quick    # small meshes only (about a minute), into quick/
+    python benchmarks/methods/run.py --report   # only REPORT.md again, from results.json
 
-Writes ``results.json`` and ``RESULTS.md`` beside this file (``--out`` to
+Writes ``results.json`` and ``REPORT.md`` beside this file (``--out`` to
 change). Per problem: each method's time, iterations, worst KKT residual, U
 and its distance to a reference (the conic solution where it runs, otherwise
 the method with the smallest KKT residual), and the time of one linear elastic
@@ -23,10 +24,7 @@ degrades (issue 4's premise).
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import platform
 import time
 from pathlib import Path
 
@@ -37,6 +35,7 @@ import elastoplast as ep
 from elastoplast.certificate import energy_norm_sq
 from elastoplast.discretize import nondimensionalize
 from elastoplast.problem import problem_from_dict, read_toml
+from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
 
 HERE = Path(__file__).resolve().parent
 PROBLEMS = HERE.parents[1] / "problems"
@@ -98,10 +97,11 @@ def compare(disc, sol: ep.Solution, ref: ep.Solution) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true", help="small meshes only")
-    p.add_argument("--out", default=str(HERE), help="output directory")
-    args = p.parse_args(argv)
+    args = record_parser(__doc__, "small meshes only").parse_args(argv)
+    out = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out, TITLE, markdown)
+        return 0
     methods = [m for m in ("conic", "uzawa", "uzawa-fast", "newton") if m in ep.METHODS]
     elastic_solve_time(case("cylinder_2d", [8, 4])[1])  # load MKL and start its threads before timing
     if args.quick:
@@ -114,8 +114,8 @@ def main(argv=None) -> int:
                  case("sphere_quarter_3d", [8, 8, 8], 1e-3, 3.0),
                  case("sphere_block_3d", [16, 16, 8], 1e-3), case("sphere_block_3d", [16, 16, 8], 1e-3, 3.0)]
         big = case("sphere_block_3d", [34, 34, 16])
-    results = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                           "loadavg_start": os.getloadavg()}, "tol": TOL, "cases": []}
+    results = {"quick": args.quick, "machine": {"cpus": os.cpu_count(), "loadavg_start": os.getloadavg()},
+               "tol": TOL, "cases": []}
     for label, disc in cases + [big]:
         is_big = label == big[0]
         entry = {"case": label, "n_elements": disc.n_elements, "n_free": disc.n_free, "H": disc.material.hardening,
@@ -153,15 +153,15 @@ def main(argv=None) -> int:
         print(f"  elastic solve {entry['elastic_solve']['total_s']:.2f} s; fastest {entry['fastest']} = "
               f"{entry['fastest_over_elastic']:.1f}x elastic" if fastest else "  none converged", flush=True)
     results["machine"]["loadavg_end"] = os.getloadavg()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    name = "results_quick" if args.quick else "results"
-    (out / f"{name}.json").write_text(json.dumps(results, indent=1))
-    (out / f"{name}.md").write_text(markdown(results))
+    write_record(out, results, TITLE, markdown)
     return 0
 
 
+TITLE = "Every method on the same problems (issue 4)"
+
+
 def markdown(results: dict) -> str:
+    """The report's body: one table per case (discussion and targets: README.md)."""
     lines = [f"Tolerance: every KKT residual <= {results['tol']:g}. Machine: {results['machine']['cpus']} cores, "
              f"load average at start {results['machine']['loadavg_start'][0]:.1f}, at end "
              f"{results['machine']['loadavg_end'][0]:.1f}.", ""]

@@ -10,12 +10,13 @@
 
 Usage::
 
-    python benchmarks/uzawa/components.py [--quick] [--out components.json]
+    python benchmarks/uzawa/components.py            # components.json and components.md in this folder
+    python benchmarks/uzawa/components.py --quick    # small cases, into quick/ (not committed)
+    python benchmarks/uzawa/components.py --report   # only components.md again, from components.json
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
@@ -24,7 +25,11 @@ import numpy as np
 
 from common import family
 import elastoplast.uzawa as uz
+from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
 from elastoplast.uzawa import FACTORIZATIONS, metric_matrix
+
+HERE = Path(__file__).resolve().parent
+TITLE = "Uzawa's step (ii): factorisation of G and the contact QP"
 
 CASES = [("cylinder_2d", [160, 80]), ("sphere_block_3d", [16, 16, 8]), ("sphere_block_3d", [26, 26, 13])]
 QUICK = [("cylinder_2d", [80, 40]), ("sphere_block_3d", [12, 12, 6])]
@@ -104,11 +109,28 @@ def measure_qps(disc) -> list[dict]:
     return rows
 
 
+def markdown(data: dict) -> str:
+    """The report's body: both tables of ``data``."""
+    out = ["Factorisation of G: factor time, one solve, the n_contact-column solve Z = G^-1 N^T, relative residual.",
+           "", "| problem | elements | rows of G | backend | factor s | solve s | Z s | residual |",
+           "|---|---|---|---|---|---|---|---|"]
+    for r in data["factorizations"]:
+        out.append(f"| {r['problem']} | {r['n_elements']} | {r['n_free']} | {r['backend']} | {r['factor_s']:.3g} "
+                   f"| {r['solve_s']:.3g} | {r['contact_columns_s']:.3g} | {r['residual']:.1e} |")
+    out += ["", "Contact QP, replayed from one Uzawa run on the largest case: mean time per QP and worst KKT "
+            "violation relative to max|g|.", "", "| method | QPs | contact nodes | mean s | worst KKT violation |",
+            "|---|---|---|---|---|"]
+    for r in data["contact_qp"]:
+        out.append(f"| {r['qp_method']} | {r['n_qps']} | {r['n_contact']} | {r['mean_s']:.2g} | {r['worst_kkt_violation']:.1e} |")
+    return "\n".join(out) + "\n"
+
+
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", default=str(Path(__file__).with_name("components.json")))
-    args = ap.parse_args()
+    args = record_parser(__doc__).parse_args()
+    out_dir = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out_dir, TITLE, markdown, study="components")
+        return
     rows = []
     for name, div in QUICK if args.quick else CASES:
         disc = family(name, div)
@@ -118,7 +140,8 @@ def main() -> None:
             rows.append(row)
             print(json.dumps(row))
     qps = measure_qps(family(*(QUICK if args.quick else CASES)[-1]))
-    Path(args.out).write_text(json.dumps({"factorizations": rows, "contact_qp": qps}, indent=1) + "\n")
+    write_record(out_dir, {"quick": args.quick, "factorizations": rows, "contact_qp": qps}, TITLE, markdown,
+                 study="components")
 
 
 if __name__ == "__main__":

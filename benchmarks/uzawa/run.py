@@ -1,4 +1,4 @@
-"""Uzawa (MATH.md section 7) against the conic reference (Clarabel) -- issue 3.
+"""Uzawa (docs/methods.md) against the conic reference (Clarabel) -- issue 3.
 
 Every run is its own subprocess, so its peak memory (VmHWM of that process:
 imports, discretisation and solve) is its own. Each run stores its
@@ -12,8 +12,12 @@ Sections:
 
 Usage::
 
-    python benchmarks/uzawa/run.py            # full run, writes results.json, RESULTS.md, *.png
-    python benchmarks/uzawa/run.py --quick    # smoke run into a temporary directory
+    python benchmarks/uzawa/run.py            # full run: results.json, REPORT.md, *.png in this folder
+    python benchmarks/uzawa/run.py --quick    # small cases, into quick/ (not committed)
+    python benchmarks/uzawa/run.py --report   # only REPORT.md and the plots again, from results.json
+
+The side studies ``components.py`` (factorisation of G, contact QP) and
+``weight.py`` (the weight of V in the metric) write their own records.
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -170,11 +176,16 @@ def _fmt(v, spec=".3g"):
     return "-" if v is None else format(v, spec)
 
 
+TITLE = "Uzawa against the conic reference"
+
+
 def markdown(results: dict) -> str:
+    """The report's body: the tables of ``results`` (discussion: README.md)."""
     meta = results["meta"]
-    out = ["# Uzawa against the conic reference", "",
-           f"Recorded by `{meta['command']}` on {meta['date']} ({meta['machine']}); "
-           f"Uzawa stops at every KKT residual <= {TOL:g}, the conic reference runs at its default tolerance. "
+    # records from before the stamp carried their own command, date and machine
+    legacy = (f"Run as `{meta['command']}` on {meta['date']} ({meta['machine']}). "
+              if "command" in meta and "stamp" not in results else "")
+    out = [legacy + f"Uzawa stops at every KKT residual <= {meta['tol']:g}, the conic reference runs at its default tolerance. "
            "Times are wall-clock seconds of the solve (factorisation and setup included, discretisation not); "
            "memory is the peak RSS of the process that ran the case. Errors are Uzawa's distance to the conic "
            "answer: U relative, stresses in the energy norm, and the number of contact nodes / elements whose "
@@ -211,39 +222,6 @@ def markdown(results: dict) -> str:
                    f"| {_fmt(ref.get('kkt_worst'), '.1e')} | {_fmt(uz.get('time_s'))} | {uz.get('iterations')} "
                    f"| {_fmt(uz.get('kkt_worst'), '.1e')} | {_fmt(uz.get('error_U'), '.1e')} "
                    f"| {_fmt(uz.get('error_stress_energy'), '.1e')} | {ref.get('n_plastic')} | {uz.get('plastic_differ')} |")
-    comp = HERE / "components.json"
-    if comp.exists():
-        data = json.loads(comp.read_text())
-        out += ["", "## Components of step (ii)", "",
-                "From `python benchmarks/uzawa/components.py` (components.json). Factorisation of G: factor time, "
-                "one solve, the n_contact-column solve Z = G^-1 N^T, relative residual.", "",
-                "| problem | elements | rows of G | backend | factor s | solve s | Z s | residual |", "|---|---|---|---|---|---|---|---|"]
-        for r in data["factorizations"]:
-            out.append(f"| {r['problem']} | {r['n_elements']} | {r['n_free']} | {r['backend']} | {r['factor_s']:.3g} "
-                       f"| {r['solve_s']:.3g} | {r['contact_columns_s']:.3g} | {r['residual']:.1e} |")
-        out += ["", "Contact QP, replayed from one Uzawa run on the largest case: mean time per QP and worst KKT "
-                "violation relative to max|g|.", "", "| method | QPs | contact nodes | mean s | worst KKT violation |",
-                "|---|---|---|---|---|"]
-        for r in data["contact_qp"]:
-            out.append(f"| {r['qp_method']} | {r['n_qps']} | {r['n_contact']} | {r['mean_s']:.2g} | {r['worst_kkt_violation']:.1e} |")
-    weight = HERE / "weight.json"
-    if weight.exists():
-        data = json.loads(weight.read_text())
-        ws = list(dict.fromkeys(r["weight"] for r in data))
-        out += ["", "## Weight w of V in the metric |eps(v)|^2 + w V^2", "",
-                "From `python benchmarks/uzawa/weight.py` (weight.json): Uzawa iterations to KKT <= 1e-6, w in the "
-                "problem's units (mm^(d-2)); `auto` is the default, 1 is the paper's literal metric.", "",
-                "| problem | elements | " + " | ".join("auto" if w is None else f"w = {w:g}" for w in ws) + " |",
-                "|---|---|" + "---|" * len(ws)]
-        for key in dict.fromkeys((r["problem"], tuple(r["divisions"])) for r in data):
-            sel = {r["weight"]: r for r in data if (r["problem"], tuple(r["divisions"])) == key}
-            first = next(iter(sel.values()))
-            out.append(f"| {key[0]} | {first['n_elements']} | "
-                       + " | ".join(str(sel[w]["iterations"]) + ("" if sel[w]["status"] == "converged" else " (not conv.)")
-                                    for w in ws) + " |")
-    notes = HERE / "NOTES.md"
-    if notes.exists():
-        out += ["", notes.read_text().strip()]
     return "\n".join(out) + "\n"
 
 
@@ -289,33 +267,20 @@ def plots(results: dict, out_dir: Path) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="small cases, results into a temporary directory")
-    ap.add_argument("--out", help="output directory (default: this folder; --quick: a temporary one)")
-    ap.add_argument("--report", action="store_true", help="only rewrite RESULTS.md and the plots from results.json")
+    ap = record_parser(__doc__)
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         print(json.dumps(child(json.loads(args.child))))
         return
+    out_dir = record_dir(HERE, args.quick, args.out)
     if args.report:
-        out_dir = Path(args.out) if args.out else HERE
-        results = json.loads((out_dir / "results.json").read_text())
-        (out_dir / "RESULTS.md").write_text(markdown(results))
-        plots(results, out_dir)
+        plots(rewrite_report(out_dir, TITLE, markdown), out_dir)
         return
-    out_dir = Path(args.out) if args.out else (Path(tempfile.mkdtemp(prefix="uzawa_bench_")) if args.quick else HERE)
-    out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    import os
-    import platform
-
     with tempfile.TemporaryDirectory() as tmp:
         store = Path(tmp)
-        results = {"meta": {"command": "python benchmarks/uzawa/run.py" + (" --quick" if args.quick else ""),
-                            "date": time.strftime("%Y-%m-%d %H:%M"),
-                            "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
-                            "tol": TOL}}
+        results = {"meta": {"quick": args.quick, "tol": TOL}}
         print("sizes", flush=True)
         results["sizes"] = section_sizes(store, QUICK["sizes"] if args.quick else SIZES)
         print("rho", flush=True)
@@ -326,8 +291,7 @@ def main() -> None:
     for section in ("sizes", "rho", "hardening"):
         for row in results[section]:
             row.pop("store", None)  # temporary files, gone
-    (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
-    (out_dir / "RESULTS.md").write_text(markdown(results))
+    results = write_record(out_dir, results, TITLE, markdown)
     plots(results, out_dir)
     print(f"done in {results['meta']['total_s']:.0f} s -> {out_dir}")
 

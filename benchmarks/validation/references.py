@@ -1,4 +1,4 @@
-"""Outside reference values of MATH.md section 8, as plain functions.
+"""Outside reference values (docs/validation.md), as plain functions.
 
 Units are whatever the caller uses consistently (here N, mm, MPa). Plane-strain
 forces are per unit length.

@@ -1,7 +1,8 @@
 """Validation study of issue 5: run every comparison, write results.json, REPORT.md and plots.
 
-    /work/venv/bin/python benchmarks/validation/run.py            # full study (about 10-20 min)
-    /work/venv/bin/python benchmarks/validation/run.py --quick    # small meshes, about 1-2 min
+    python benchmarks/validation/run.py            # full study (about 10-20 min)
+    python benchmarks/validation/run.py --quick    # small meshes, about 1-2 min
+    python benchmarks/validation/run.py --report   # only REPORT.md and the plots again, from results.json
 
 The full study writes into this folder (committed); ``--quick`` writes into
 ``quick/`` below it unless ``--out`` says otherwise.
@@ -9,13 +10,14 @@ The full study writes into this folder (committed); ``--quick`` writes into
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -46,7 +48,7 @@ SIZES = {
 
 def run_all(mode: str) -> dict:
     s = SIZES[mode]
-    out: dict = {"mode": mode}
+    out: dict = {"mode": mode, "elastic_method_3d": study.elastic_method(3)}
     timings = {}
 
     def timed(name, fn):
@@ -73,19 +75,16 @@ def run_all(mode: str) -> dict:
 # ----------------------------------------------------------------------------
 
 
-def plots(res: dict, out: Path) -> list[str]:
+def plots(res: dict, out: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = []
-
     def save(fig, name):
         fig.tight_layout()
         fig.savefig(out / name, dpi=110)
         plt.close(fig)
-        names.append(name)
 
     # Hertz: differences against h and against block size
     fig, ax = plt.subplots(1, 2, figsize=(10, 4))
@@ -169,7 +168,6 @@ def plots(res: dict, out: Path) -> list[str]:
     ax[1].set_ylabel("U (mm)")
     ax[1].legend(fontsize=7)
     save(fig, "punch.png")
-    return names
 
 
 # ----------------------------------------------------------------------------
@@ -187,17 +185,21 @@ def table(header: list[str], rows: list[list]) -> str:
     return "\n".join(lines)
 
 
-def report(res: dict, figures: list[str]) -> str:
+#: the figures :func:`plots` draws, in the order the report shows them
+FIGURES = ["hertz.png", "convergence.png", "load_displacement.png", "punch.png"]
+TITLE = "Validation against outside references"
+
+
+def report(res: dict) -> str:
+    """The report's body: every comparison's tables (discussion: README.md)."""
     c, s3 = res["hertz_cylinder"], res["hertz_sphere"]
     cr, sr = c["reference"], s3["reference"]
     fy2, fy3 = res["first_yield_cylinder"], res["first_yield_sphere"]
     conv, ld, pu = res["convergence"], res["load_displacement"], res["punch"]
-    cmd = "python benchmarks/validation/run.py" + (" --quick" if res["mode"] == "quick" else "")
-    L = [f"# Validation against outside references ({res['mode']} run)", "",
-         f"Produced by `{cmd}`; numbers in `results.json`. Steel, E = {study.E:g} MPa, nu = {study.NU}, "
+    L = [f"{res['mode'].capitalize()} run; numbers in `results.json`. Steel, E = {study.E:g} MPa, nu = {study.NU}, "
          f"rigid cylinder/sphere R = {study.R:g} mm. Every solution used below certifies (worst relative KKT "
          f"residual <= {study.KKT_OK:g}, column `kkt`). 2D: conic solver; 3D: "
-         f"{study.elastic_method(3)} (elastic). Timings per comparison (s): {res['timings_s']}.", ""]
+         f"{res.get('elastic_method_3d', study.elastic_method(3))} (elastic). Timings per comparison (s): {res['timings_s']}.", ""]
 
     L += ["## 1. Hertz, elastic limit", "",
           f"### Cylinder, plane strain (F = {cr['F']:g} N/mm: b = {cr['b']:.4f} mm, p0 = {cr['p0']:.1f} MPa)", "",
@@ -237,7 +239,7 @@ def report(res: dict, figures: list[str]) -> str:
         return rows[-1][key]
 
     L += ["## 2. First yield", "",
-          "Reference: Green (2005) fits of MATH.md 8: cylinder max von Mises / p0 = "
+          "Reference: Green (2005) fits (docs/validation.md): cylinder max von Mises / p0 = "
           f"{cr['green_vm_over_p0']:.4f} at z = {cr['green_depth_over_b']:.3f} b; sphere "
           f"{sr['green_vm_over_p0']:.4f} at z = {sr['green_depth_over_a']:.3f} a.", "",
           "Ratio and depth from the elastic solutions of section 1 (depth: vertex of a parabola fitted to von "
@@ -352,25 +354,23 @@ def report(res: dict, figures: list[str]) -> str:
                                 f"{r['sigma_diff_to_H0']:.2e}" if "sigma_diff_to_H0" in r else "-",
                                 f"{r['max_xi_over_sy']:.3g}", f"{r['kkt_worst']:.0e}"]
                                for r in s["hardening_sweep"]]), ""]
-    L += ["## Figures", ""] + [f"![{f}]({f})" for f in figures] + [""]
+    L += ["## Figures", ""] + [f"![{f}]({f})" for f in FIGURES] + [""]
     return "\n".join(L)
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true", help="small meshes (about 1-2 minutes)")
-    p.add_argument("--out", type=Path, default=None, help="output folder (default: this folder, or quick/ with --quick)")
-    args = p.parse_args(argv)
+    args = record_parser(__doc__, "small meshes (under a minute)").parse_args(argv)
+    out = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        plots(rewrite_report(out, TITLE, report), out)
+        return 0
     mode = "quick" if args.quick else "full"
-    out = args.out or (HERE / "quick" if args.quick else HERE)
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     print(f"validation study, {mode} mode -> {out}", flush=True)
     res = run_all(mode)
     res["total_time_s"] = round(time.perf_counter() - t0, 1)
-    (out / "results.json").write_text(json.dumps(res, indent=1, default=float))
-    figures = plots(res, out)
-    (out / "REPORT.md").write_text(report(res, figures))
+    res = write_record(out, res, TITLE, report)
+    plots(res, out)
     print(f"done in {res['total_time_s']} s", flush=True)
     return 0
 

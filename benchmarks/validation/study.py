@@ -31,7 +31,7 @@ except ImportError:  # run as a script or loaded by path
     import references as ref  # type: ignore[no-redef]
 
 E, NU, R = 200_000.0, 0.3, 40.0
-#: plane-strain force per mm giving b = 1.0 mm (MATH.md section 8 formula)
+#: plane-strain force per mm giving b = 1.0 mm (docs/validation.md)
 F_CYLINDER = 4315.0
 #: sphere force giving a = 1.0 mm
 F_SPHERE = 7330.0
@@ -245,7 +245,7 @@ def hertz_cylinder_study(mesh_nh: Sequence[int], block_L: Sequence[float], *, me
 
     mesh = [one(mesh_L, nh, 1.5) for nh in mesh_nh]
     block = [one(L, int(math.ceil(2.0 * math.sqrt(L) / block_h)), 2.0) for L in block_L]
-    return {"reference": {"formula": "b = sqrt(4 F R / (pi E*)), p0 = 2F / (pi b) (MATH.md 8)", "F": F_CYLINDER,
+    return {"reference": {"formula": "b = sqrt(4 F R / (pi E*)), p0 = 2F / (pi b) (docs/validation.md)", "F": F_CYLINDER,
                           "R": R, "E": E, "nu": NU, "b": b, "p0": p0,
                           "green_vm_over_p0": 1.0 / green["p0_over_sy"], "green_depth_over_b": green["depth_over_b"]},
             "mesh_sequence": mesh, "block_sizes": block,
@@ -283,7 +283,7 @@ def hertz_sphere_study(mesh_n: Sequence[int], block_L: Sequence[float], block_n:
 
     mesh = [one(mesh_L, n) for n in mesh_n]
     block = [one(L, n) for L, n in zip(block_L, block_n)]
-    return {"reference": {"formula": "a = (3FR/4E*)^(1/3), p0 = 3F/(2 pi a^2), delta = a^2/R (MATH.md 8)",
+    return {"reference": {"formula": "a = (3FR/4E*)^(1/3), p0 = 3F/(2 pi a^2), delta = a^2/R (docs/validation.md)",
                           "F": F_SPHERE, "R": R, "E": E, "nu": NU, "a": a, "p0": p0, "delta": delta,
                           "green_vm_over_p0": 1.0 / green["p0_over_sy"], "green_depth_over_a": green["depth_over_a"]},
             "mesh_sequence": mesh, "block_sizes": block,
@@ -585,7 +585,7 @@ def punch_study(nh: Sequence[int], *, L: float = 4.0, h_levels: Sequence[float] 
                        "H0_U": perfect.U if perfect.status is Status.CONVERGED else None,
                        "H0_kkt_worst": perfect.kkt.worst if perfect.status is Status.CONVERGED else None,
                        "hardening_sweep": rows_h})
-    return {"reference": {"formula": "Prandtl: p = (2 + pi) sigma_y / sqrt(3) (MATH.md 8)", "sigma_y": yield_stress,
+    return {"reference": {"formula": "Prandtl: p = (2 + pi) sigma_y / sqrt(3) (docs/validation.md)", "sigma_y": yield_stress,
                           "p_prandtl": p_prandtl, "half_width": w},
             "problem": {"L": L, "E": E, "nu": NU, "mesh": "uniform criss-cross (4 triangles per square)"},
             "mesh_sequence": rows, "generator_mesh": generator_mesh,

@@ -1,0 +1,304 @@
+"""Issue 9, hardening: no hang, no wrong answer called converged, no traceback,
+safe output, one option path. Each test names the exact input the issue
+reported and asserts the exit code and the field the message names."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sqlite3
+import time
+
+import numpy as np
+import pytest
+
+import elastoplast as ep
+from elastoplast.cli import main
+from elastoplast.iteration import within_tolerance
+from elastoplast.options import LOOSEST_TOL, MAX_ITER_CEILING, TIGHTEST_TOL
+from elastoplast.output import OUTPUT_MARKER, json_text, write_results
+
+from conftest import PROBLEMS, build
+from test_cli import small_cylinder, write_toml
+
+ITERATIVE = ["uzawa", "uzawa-fast", "newton"]
+
+
+@pytest.fixture
+def problem_file(tmp_path):
+    return write_toml(tmp_path / "base.toml", small_cylinder())
+
+
+@pytest.fixture(scope="module")
+def small_disc():
+    return build(small_cylinder())
+
+
+def run(capsys, *argv) -> tuple[int, str]:
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    return code, err[-1] if err else ""
+
+
+# ---------------------------------------------------------------------------
+# hangs: every loop is bounded, and no option can unbound it
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("method", ITERATIVE)
+@pytest.mark.parametrize("flags,field", [
+    (["--tol", "0", "--max-iter", "-1"], "--tol"),
+    (["--tol", "nan"], "--tol"),
+    (["--tol", "1e-30"], "--tol"),
+    (["--max-iter", "-1"], "--max-iter"),
+    (["--max-iter", "0"], "--max-iter"),
+    (["--max-iter", "4294967296"], "--max-iter"),
+    (["--time-limit", "-1"], "--time-limit"),
+    (["--time-limit", "inf"], "--time-limit"),
+])
+def test_unbounding_options_are_refused_before_any_work(problem_file, tmp_path, capsys, method, flags, field):
+    """The issue's hangs (`--tol 0 --max-iter -1`, `--tol nan`, `--tol 1e-30`)
+    and their relatives: exit 2, one line naming the flag, no output written."""
+    t0 = time.perf_counter()
+    code, line = run(capsys, "solve", problem_file, "--method", method, "--quiet", "--out", tmp_path / "o", *flags)
+    assert code == 2 and line.startswith(f"error: {field}:"), line
+    assert not (tmp_path / "o").exists()
+    assert time.perf_counter() - t0 < 10.0  # refused, not run
+
+
+@pytest.mark.parametrize("method", ["conic", *ITERATIVE])
+def test_time_limit_stops_every_method(small_disc, method):
+    """A wall-clock limit far below one solve ends each method with status
+    time_limit (or an honest max_iterations for one-step interior points),
+    never converged, and returns the last candidate with its residuals."""
+    sol = ep.solve(small_disc.with_force(6 * small_disc.force), method, time_limit=1e-3)
+    assert sol.status in (ep.Status.TIME_LIMIT, ep.Status.MAX_ITERATIONS, ep.Status.FAILED), sol.message
+    assert not within_tolerance(sol.kkt, 1e-6)
+
+
+def test_tolerance_range_is_the_documented_one():
+    """One range for every method: [TIGHTEST_TOL, LOOSEST_TOL]; iteration counts capped."""
+    for method, m in ep.METHODS.items():
+        assert ep.method_options(method, {"tol": TIGHTEST_TOL}).tol == TIGHTEST_TOL
+        assert ep.method_options(method, {"tol": LOOSEST_TOL}).tol == LOOSEST_TOL
+        for bad in (0.0, -1e-6, 2 * LOOSEST_TOL, TIGHTEST_TOL / 2, math.nan, math.inf, True, "1e-6"):
+            with pytest.raises(ep.InputError) as exc:
+                ep.method_options(method, {"tol": bad})
+            assert exc.value.field == "tol"
+        assert m.options.specs()["max_iter"].hi <= MAX_ITER_CEILING
+
+
+# ---------------------------------------------------------------------------
+# wrong answers called converged
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("method", ITERATIVE)
+def test_loose_tolerance_cannot_call_the_start_converged(problem_file, tmp_path, capsys, method):
+    """The issue: `--tol 5` returned U = 0 after 0 iterations as converged.
+    A tolerance above LOOSEST_TOL is refused (exit 2, names --tol)."""
+    code, line = run(capsys, "solve", problem_file, "--method", method, "--tol", "5", "--quiet", "--out", tmp_path / "o")
+    assert code == 2 and line.startswith("error: --tol:"), line
+
+
+def test_the_loosest_tolerance_still_rejects_the_trivial_answer(small_disc):
+    """At u = 0, U = 0 the force balance residual is |0 - F| / F = 1 (the
+    certificate's definition), far above LOOSEST_TOL: the trivial answer can
+    never pass."""
+    z = np.zeros
+    kkt = ep.certify(small_disc, z((small_disc.n_elements, small_disc.k)), z(small_disc.n_elements),
+                     z((small_disc.mesh.n_nodes, small_disc.dim)), 0.0)
+    assert kkt.force_balance == 1.0
+    assert not within_tolerance(kkt, LOOSEST_TOL)
+
+
+def test_nan_anywhere_is_never_small():
+    """`KKTResiduals.worst` ignored a NaN unless it came first."""
+    fields = [f.name for f in dataclasses.fields(ep.KKTResiduals)]
+    for i in range(len(fields)):
+        values = {name: 1e-12 for name in fields}
+        values[fields[i]] = math.nan
+        kkt = ep.KKTResiduals(**values)
+        assert math.isnan(kkt.worst), fields[i]
+        assert not within_tolerance(kkt, LOOSEST_TOL)
+
+
+def test_non_finite_answer_is_not_converged(small_disc):
+    """make_solution downgrades a CONVERGED candidate holding NaN (whatever the method claimed)."""
+    sol = ep.solve(small_disc, "newton")
+    assert sol.converged
+    u_free = small_disc.free_displacement(sol.u)
+    u_free[0] = np.nan
+    bad = ep.make_solution(small_disc, method="test", status=ep.Status.CONVERGED, sigma=sol.sigma, xi=sol.xi,
+                           u_free=u_free, U=sol.U, iterations=0, timings={})
+    assert bad.status is ep.Status.FAILED and "non-finite" in bad.message
+
+
+# ---------------------------------------------------------------------------
+# one option path
+# ---------------------------------------------------------------------------
+
+
+def test_unknown_or_meaningless_options_are_refused_everywhere(small_disc, problem_file, tmp_path, capsys):
+    """Python keywords, [solver] table, command-line flags and --option: the
+    same check, naming the option as the user wrote it."""
+    with pytest.raises(ep.InputError) as exc:
+        ep.solve(small_disc, "conic", polish=False, no_such_option=1)
+    assert exc.value.field == "no_such_option"
+    with pytest.raises(ep.InputError) as exc:
+        ep.solve(small_disc, "newton", rho=1e-6)
+    assert exc.value.field == "rho"
+    code, line = run(capsys, "solve", problem_file, "--method", "newton", "--rho", "1e-6", "--out", tmp_path / "a")
+    assert code == 2 and line.startswith("error: --rho: method 'newton' has no option 'rho'"), line
+    code, line = run(capsys, "solve", problem_file, "--option", "penalty=2", "--out", tmp_path / "b")
+    assert code == 2 and line.startswith("error: --option penalty:"), line
+    data = small_cylinder()
+    data["solver"] = {"method": "uzawa-fast", "rho": 1.0}
+    code, line = run(capsys, "solve", write_toml(tmp_path / "s.toml", data), "--out", tmp_path / "c")
+    assert code == 2 and line.startswith("error: solver.rho:"), line
+
+
+def test_option_flag_reaches_the_method(problem_file, tmp_path, capsys):
+    """`--option polish=false` gives the raw interior-point answer (its message
+    has no polishing), `--option polish=true` the polished one."""
+    for value, polished in (("false", False), ("true", True)):
+        out = tmp_path / value
+        main(["solve", str(problem_file), "--quiet", "--out", str(out), "--option", f"polish={value}"])
+        assert ("polished" in json.loads((out / "summary.json").read_text())["message"]) is polished
+
+
+# ---------------------------------------------------------------------------
+# tracebacks and exit codes
+# ---------------------------------------------------------------------------
+
+
+def test_out_pointing_at_a_file_is_refused_before_the_solve(problem_file, tmp_path, capsys, monkeypatch):
+    target = tmp_path / "a-file"
+    target.write_text("mine")
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("the solve ran before --out was checked")
+
+    monkeypatch.setattr(ep.solvers, "solve", must_not_run)
+    code, line = run(capsys, "solve", problem_file, "--out", target)
+    assert code == 2 and line.startswith("error: --out:") and "not a folder" in line, line
+    assert target.read_text() == "mine"
+
+
+def test_out_holding_other_files_is_refused(problem_file, tmp_path, capsys):
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "notes.txt").write_text("keep me")
+    code, line = run(capsys, "solve", problem_file, "--out", folder)
+    assert code == 2 and line.startswith("error: --out:") and "notes.txt" in line, line
+    assert (folder / "notes.txt").read_text() == "keep me"
+
+
+def test_internal_error_is_one_line_with_exit_3(problem_file, tmp_path, capsys, monkeypatch):
+    def broken(disc, options):
+        raise ZeroDivisionError("deep inside a solver")
+
+    monkeypatch.setitem(ep.solvers.METHODS, "conic", ep.solvers.Method("conic", broken, ep.ConicOptions, "broken"))
+    monkeypatch.delenv("ELASTOPLAST_DEBUG", raising=False)
+    code = main(["solve", str(problem_file), "--quiet", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 3 and len(err) == 1 and "ZeroDivisionError: deep inside a solver" in err[0], err
+    assert not (tmp_path / "o").exists()  # nothing half-written
+
+
+def test_corrupt_store_is_an_input_error(tmp_path, capsys):
+    store = tmp_path / "store"
+    store.mkdir()
+    (store / "index.sqlite").write_bytes(b"this is not an SQLite database" * 100)
+    code, line = run(capsys, "compare", store, "--method", "conic", "--workers", "1", "--quiet")
+    assert code == 2 and line.startswith("error: store:") and "damaged" in line, line
+    code, line = run(capsys, "campaign", PROBLEMS / "campaign_2d.toml", "--out", store, "--workers", "1")
+    assert code == 2 and line.startswith("error: store:"), line
+
+
+@pytest.mark.parametrize("flags,field", [
+    (["--workers", "-2"], "workers"), (["--workers", "0"], "workers"), (["--workers", "100000"], "workers"),
+    (["--scheduler", "not a url"], "scheduler"), (["--scheduler", "tcp://127.0.0.1:99999"], "scheduler"),
+])
+def test_bad_cluster_arguments_are_refused_and_leave_no_store(tmp_path, capsys, flags, field):
+    """The issue: `--workers -2` waited forever; `--scheduler "not a url"` gave a traceback."""
+    code, line = run(capsys, "campaign", PROBLEMS / "campaign_2d.toml", "--out", tmp_path / "store", "--quiet", *flags)
+    assert code == 2 and line.startswith(f"error: {field}:"), line
+    assert not (tmp_path / "store").exists()
+
+
+def test_unreachable_scheduler_leaves_no_store(tmp_path, capsys):
+    code, line = run(capsys, "campaign", PROBLEMS / "campaign_2d.toml", "--out", tmp_path / "store", "--quiet",
+                     "--scheduler", "tcp://127.0.0.1:9")  # the discard port: nothing listens
+    assert code == 2 and line.startswith("error: scheduler:"), line
+    assert not (tmp_path / "store").exists()
+
+
+# ---------------------------------------------------------------------------
+# output
+# ---------------------------------------------------------------------------
+
+
+def test_reused_out_holds_only_the_new_runs_files(problem_file, tmp_path):
+    """The issue: a re-used --out kept an earlier method's convergence plot."""
+    out = tmp_path / "out"
+    assert main(["solve", str(problem_file), "--method", "uzawa", "--quiet", "--out", str(out)]) == 0
+    assert (out / "convergence.png").is_file()
+    assert main(["solve", str(problem_file), "--method", "conic", "--quiet", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == sorted([OUTPUT_MARKER, "solution.vtu", "summary.json"])
+    assert json.loads((out / "summary.json").read_text())["method"] == "conic"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]  # no temporary folder left
+
+
+def test_failed_write_leaves_the_earlier_output_intact(small_disc, tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    sol = ep.solve(small_disc, "conic")
+    write_results(out, small_disc, sol)
+    before = (out / "summary.json").read_text()
+
+    def broken_vtu(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(ep.output, "write_vtu", broken_vtu)
+    with pytest.raises(OSError):
+        write_results(out, small_disc, sol)
+    assert (out / "summary.json").read_text() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_summary_is_strict_json_even_with_non_finite_values(small_disc, tmp_path):
+    """The issue: NaN/Infinity in summary.json, which strict readers refuse."""
+    sol = ep.solve(small_disc, "conic")
+    bad = dataclasses.replace(sol, U=math.inf, contact_pressure=np.full_like(sol.contact_pressure, np.nan))
+    write_results(tmp_path / "o", small_disc, bad)
+    text = (tmp_path / "o" / "summary.json").read_text()
+
+    def refuse(constant):
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    data = json.loads(text, parse_constant=refuse)
+    assert data["U"] is None and data["max_contact_pressure"] is None
+    assert json.loads(json_text({"a": [np.float64("nan"), np.inf, 1.5]})) == {"a": [None, None, 1.5]}
+
+
+def test_absurd_force_is_refused(problem_file, tmp_path, capsys):
+    """The issue's `force = 1e300`: a mean pressure 1e3 E and more has no small-strain meaning."""
+    data = small_cylinder()
+    data["load"]["force"] = 1e300
+    code, line = run(capsys, "solve", write_toml(tmp_path / "f.toml", data), "--quiet", "--out", tmp_path / "o")
+    assert code == 2 and line.startswith("error: load.force:"), line
+
+
+def test_campaign_checks_problem_dependent_options_before_running(tmp_path):
+    """Uzawa's step must lie below 2 / lambda_max(C) of the material: a campaign point
+    beyond it is refused when the campaign is loaded, naming the axis."""
+    from elastoplast.campaign import load_campaign
+
+    path = tmp_path / "c.toml"
+    path.write_text(f'[campaign]\nproblem = "{PROBLEMS / "cylinder_2d.toml"}"\n[mesh]\ndivisions = [20, 10]\n'
+                    '[sweep]\nmethod = ["uzawa"]\n"solver.rho" = [1e-6, 1.0]\n'
+                    '"material.hardening" = [10000.0]\n"load.force" = [1000.0]\n')
+    with pytest.raises(ep.InputError) as exc:
+        load_campaign(path)
+    assert exc.value.field == "sweep.solver.rho" and "1.0" in exc.value.message

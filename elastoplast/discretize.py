@@ -263,6 +263,12 @@ def check_mesh_arrays(mesh: Mesh) -> None:
         raise InputError("mesh", f"cells must be integer node indices in [0, {mesh.n_nodes})")
     if not np.all(np.isfinite(pts)):
         raise InputError("mesh", "node coordinates must be finite")
+    for name, facets in mesh.groups.items():
+        facets = np.asarray(facets)
+        if facets.size and (facets.ndim != 2 or facets.shape[1] != mesh.dim or facets.dtype.kind not in "iu"
+                            or facets.min() < 0 or facets.max() >= mesh.n_nodes):
+            raise InputError("mesh", f"group {name!r} must be ({mesh.dim}-node facets) of node indices in "
+                                     f"[0, {mesh.n_nodes})")
 
 
 def _vertical_fixed_message(problem: Problem, contact_nodes: np.ndarray, vertical_fixed: np.ndarray) -> str:

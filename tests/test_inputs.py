@@ -9,6 +9,7 @@ of the checks themselves follow each class.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 import tracemalloc
@@ -663,13 +664,22 @@ def test_hanging_node_check_alone():
     _check_hanging_nodes(pts + [[0, 0], [0, 0], [0, 0.1], [0, 0]], facets, "mesh.file")  # off the line: none
 
 
-def test_gmsh_recombined_quads(tmp_path, capsys):
-    """A real gmsh mesh with quadrilaterals recombined beside triangles."""
+@contextlib.contextmanager
+def gmsh_model(name: str):
+    """The gmsh API, initialised with one empty model (skips without gmsh)."""
     gmsh = pytest.importorskip("gmsh")
     gmsh.initialize()
     try:
         gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add("mixed")
+        gmsh.model.add(name)
+        yield gmsh
+    finally:
+        gmsh.finalize()
+
+
+def test_gmsh_recombined_quads(tmp_path, capsys):
+    """A real gmsh mesh with quadrilaterals recombined beside triangles."""
+    with gmsh_model("mixed") as gmsh:
         left = gmsh.model.occ.addRectangle(0, 0, 0, 1, 1)
         right = gmsh.model.occ.addRectangle(1, 0, 0, 1, 1)
         gmsh.model.occ.fragment([(2, left)], [(2, right)])
@@ -681,8 +691,6 @@ def test_gmsh_recombined_quads(tmp_path, capsys):
         gmsh.model.addPhysicalGroup(1, bottom, name="bottom")
         gmsh.model.mesh.generate(2)
         gmsh.write(str(tmp_path / "m.msh"))
-    finally:
-        gmsh.finalize()
     data = square_problem("m.msh")
     refused(tmp_path, capsys, data, "mesh.file", "quad", "beside")
 
@@ -690,11 +698,7 @@ def test_gmsh_recombined_quads(tmp_path, capsys):
 def gmsh_two_rectangles(path: Path, *, fragment: bool, right_size: float | None) -> Path:
     """Two unit squares side by side meshed by gmsh, sharing their interface (fragment)
     or each meshed on its own (gmsh then writes the interface nodes twice)."""
-    gmsh = pytest.importorskip("gmsh")
-    gmsh.initialize()
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add("two")
+    with gmsh_model("two") as gmsh:
         left, right = gmsh.model.occ.addRectangle(0, 0, 0, 1, 1), gmsh.model.occ.addRectangle(1, 0, 0, 1, 1)
         if fragment:
             gmsh.model.occ.fragment([(2, left)], [(2, right)])
@@ -709,8 +713,6 @@ def gmsh_two_rectangles(path: Path, *, fragment: bool, right_size: float | None)
             gmsh.model.addPhysicalGroup(1, curves, name=name)
         gmsh.model.mesh.generate(2)
         gmsh.write(str(path))
-    finally:
-        gmsh.finalize()
     return path
 
 
@@ -734,11 +736,7 @@ def test_gmsh_volumes_meshed_apart(tmp_path, capsys, fragment, right_size, outco
 def test_gmsh_untagged_facets_are_ignored(tmp_path):
     """With Mesh.SaveAll gmsh writes every line with physical tag 0, an embedded
     line inside the square too: in no group, and faces of elements, so accepted."""
-    gmsh = pytest.importorskip("gmsh")
-    gmsh.initialize()
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add("embedded")
+    with gmsh_model("embedded") as gmsh:
         square_tag = gmsh.model.occ.addRectangle(0, 0, 0, 2, 1)
         a, b = gmsh.model.occ.addPoint(0.5, 0.5, 0), gmsh.model.occ.addPoint(1.5, 0.5, 0)
         line = gmsh.model.occ.addLine(a, b)
@@ -749,8 +747,6 @@ def test_gmsh_untagged_facets_are_ignored(tmp_path):
         gmsh.option.setNumber("Mesh.MeshSizeMax", 0.25)
         gmsh.model.mesh.generate(2)
         gmsh.write(str(tmp_path / "e.msh"))
-    finally:
-        gmsh.finalize()
     raw = meshio.read(tmp_path / "e.msh")
     lines = np.concatenate([b.data for b in raw.cells if b.type == "line"])
     assert np.any(np.all(np.isclose(raw.points[lines][:, :, 1], 0.5), axis=1))  # the embedded line is there

@@ -14,6 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from .checks import check_mesh_size
 from .errors import InputError
 from .material import Material, n_components
 from .mesh import Mesh, _boundary_facets
@@ -241,10 +242,51 @@ def _flat_bottom_area(mesh: Mesh, tol: float) -> np.ndarray:
     return area
 
 
+# ----------------------------------------------------------------------------
+# input checks before anything is built (kept apart from the assembly below)
+# ----------------------------------------------------------------------------
+
+
+def check_mesh_arrays(mesh: Mesh) -> None:
+    """A :class:`Mesh` built in Python must be what the operators expect: finite
+    coordinates ``(n, 2 or 3)``, simplices ``(n_el, d+1)`` of valid node indices, and a
+    size whose operators fit in memory (files and generators are checked on the way in;
+    this guards meshes made directly)."""
+    pts, cells = mesh.points, mesh.cells
+    if pts.ndim != 2 or pts.shape[1] not in (2, 3) or cells.ndim != 2 or cells.shape[1] != pts.shape[1] + 1:
+        raise InputError("mesh", f"points must be (n, 2 or 3) and cells (n_el, d + 1), got {pts.shape} and {cells.shape}")
+    if cells.shape[0] == 0:
+        raise InputError("mesh", "the mesh has no elements")
+    check_mesh_size(mesh.dim, mesh.n_nodes, mesh.n_elements, sum(len(g) for g in mesh.groups.values()), "mesh",
+                    "this mesh", "use a coarser mesh")
+    if cells.dtype.kind not in "iu" or cells.min() < 0 or cells.max() >= mesh.n_nodes:
+        raise InputError("mesh", f"cells must be integer node indices in [0, {mesh.n_nodes})")
+    if not np.all(np.isfinite(pts)):
+        raise InputError("mesh", "node coordinates must be finite")
+    for name, facets in mesh.groups.items():
+        facets = np.asarray(facets)
+        if facets.size and (facets.ndim != 2 or facets.shape[1] != mesh.dim or facets.dtype.kind not in "iu"
+                            or facets.min() < 0 or facets.max() >= mesh.n_nodes):
+            raise InputError("mesh", f"group {name!r} must be ({mesh.dim}-node facets) of node indices in "
+                                     f"[0, {mesh.n_nodes})")
+
+
+def _vertical_fixed_message(problem: Problem, contact_nodes: np.ndarray, vertical_fixed: np.ndarray) -> str:
+    """Which groups fix the vertical displacement of contact nodes."""
+    mesh, bnd, d = problem.mesh, problem.boundary, problem.mesh.dim
+    nodes = contact_nodes[vertical_fixed]
+    names = [n for n in list(bnd.clamped) + list(bnd.fix_component.get(d - 1, ()))
+             if np.intersect1d(mesh.group_nodes([n]), nodes).size]
+    return (f"{int(vertical_fixed.sum())} contact node(s) have their vertical displacement fixed (by group(s) "
+            f"{sorted(set(names))}): the contact zone must stay clear of clamped groups and of fix_component on the "
+            "vertical axis")
+
+
 def discretize(problem: Problem) -> Discretization:
     """Build the operators of (2.1) and refuse inputs that make it ill-posed."""
     mesh = problem.mesh
     d = mesh.dim
+    check_mesh_arrays(mesh)
     volumes, grads = _element_geometry(mesh)
     B_all = strain_operator(mesh, grads)
 
@@ -271,11 +313,7 @@ def discretize(problem: Problem) -> Discretization:
         raise InputError("mesh", f"part of the body lies below the contact plane x_{d} = 0")
     vertical_fixed = fixed_mask.reshape(-1, d)[contact_nodes, d - 1]
     if np.any(vertical_fixed):
-        raise InputError(
-            "boundary.contact",
-            f"{int(vertical_fixed.sum())} contact node(s) have their vertical displacement fixed "
-            "(the contact zone must stay clear of clamped groups and of fix_component on the vertical axis)",
-        )
+        raise InputError("boundary.contact", _vertical_fixed_message(problem, contact_nodes, vertical_fixed))
     _check_no_rigid_motion(mesh, fixed_mask)
 
     free = np.flatnonzero(~fixed_mask)
@@ -288,7 +326,7 @@ def discretize(problem: Problem) -> Discretization:
 
     psi = problem.obstacle.psi(mesh.points[contact_nodes, :-1], field="obstacle")
     area = _flat_bottom_area(mesh, tol)[contact_nodes]
-    return Discretization(
+    disc = Discretization(
         problem=problem,
         volumes=volumes,
         B=B,
@@ -299,6 +337,8 @@ def discretize(problem: Problem) -> Discretization:
         psi=psi,
         contact_area=area,
     )
+    check_scales(disc)
+    return disc
 
 
 @dataclass(frozen=True)
@@ -318,6 +358,41 @@ class Units:
     E: float
 
 
+def reference_units(disc: Discretization) -> Units:
+    """The :class:`Units` of ``disc`` (their definitions are in its docstring)."""
+    m, d = disc.material, disc.dim
+    L = float(disc.volumes.mean() ** (1.0 / d))
+    area = disc.contact_area.sum()
+    S = disc.force / area if area > 0 else m.E * 1e-3
+    return Units(stress=S, length=L, displacement=L * S / m.E, force=S * L ** (d - 1), E=m.E)
+
+
+SCALE_RANGE = (1e-100, 1e100)
+
+
+def check_scales(disc: Discretization) -> None:
+    """Refuse magnitudes no solver can scale: in the units of :class:`Units` (E = 1)
+    the yield stress ``sigma_y / S``, the strain scale ``S / E`` and the obstacle
+    ``psi / displacement`` must lie within ``SCALE_RANGE`` (squares then stay finite
+    doubles). Beyond it (a force of 1e-300 or 1e300, E = 1e300 against a yield stress
+    of 1e3) the scaled data overflow and the solvers return nan."""
+    lo, hi = SCALE_RANGE
+    m = disc.material
+    with np.errstate(all="ignore"):
+        u = reference_units(disc)
+        yield_strain = m.yield_stress / m.E
+        strain = u.stress / m.E
+        psi = float(np.max(np.abs(disc.psi), initial=0.0)) / u.displacement
+    if not lo <= yield_strain <= hi:
+        field = "material.E" if abs(np.log10(m.E)) >= abs(np.log10(m.yield_stress)) else "material.yield_stress"
+        raise InputError(field, f"E = {m.E:g} against yield_stress = {m.yield_stress:g}: their ratio is beyond "
+                                f"[{lo:g}, {hi:g}], which no solver can scale")
+    if not lo <= strain <= hi or not psi <= hi:
+        raise InputError("load.force", f"force = {disc.force:g} gives a mean contact pressure F / |Gamma_0| = "
+                                       f"{u.stress:.3g}, {strain:.3g} times E (and an obstacle {psi:.3g} times the "
+                                       f"displacement scale): beyond [{lo:g}, {hi:g}], which no solver can scale")
+
+
 def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
     """The same discrete problem in the units of :class:`Units` (E becomes 1).
 
@@ -328,10 +403,8 @@ def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
     from dataclasses import replace
 
     m, d = disc.material, disc.dim
-    L = float(disc.volumes.mean() ** (1.0 / d))
-    area = disc.contact_area.sum()
-    S = disc.force / area if area > 0 else m.E * 1e-3
-    units = Units(stress=S, length=L, displacement=L * S / m.E, force=S * L ** (d - 1), E=m.E)
+    units = reference_units(disc)
+    S, L = units.stress, units.length
     material = Material(1.0, m.nu, m.yield_stress / S, m.hardening / m.E)
     problem = replace(disc.problem, material=material, force=disc.force / units.force)
     return (

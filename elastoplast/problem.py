@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ast
 import math
+import numbers
 import tomllib
 import warnings
 from dataclasses import dataclass, field
@@ -19,6 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .checks import read_bytes
 from .errors import InputError
 from .material import Material
 from .mesh import Mesh, read_mesh, structured_mesh
@@ -49,23 +51,118 @@ _SAFE_FUNCS = {
                  "sinh", "cosh", "tanh", "abs", "minimum", "maximum", "where", "pi", "hypot")
 }
 _SAFE_FUNCS["e"] = np.e
+_ARITY = {name: 1 for name in _SAFE_FUNCS if callable(_SAFE_FUNCS[name])}
+_ARITY.update(minimum=2, maximum=2, hypot=2, where=3)
+_OPERATORS = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow, ast.Mod, ast.FloorDiv, ast.UAdd, ast.USub,
+              ast.Lt, ast.LtE, ast.Gt, ast.GtE, ast.Eq, ast.NotEq)
+MAX_EXPRESSION_CHARS = 2000
+MAX_EXPRESSION_NODES = 500
+
+
+class _FloatConstants(ast.NodeTransformer):
+    """Replace every number by a name bound to a NumPy float64.
+
+    Python integers are exact and unbounded: ``9**9**9**9`` or ``10**10**8`` would run
+    for minutes and take gigabytes before any check. NumPy floats overflow to ``inf``
+    at once (refused afterwards as not finite), so every evaluation costs a few
+    operations per node and node of the expression.
+    """
+
+    def __init__(self) -> None:
+        self.values: dict[str, np.float64] = {}
+
+    def visit_Constant(self, node: ast.Constant) -> ast.AST:
+        try:
+            value = np.float64(float(node.value))
+        except OverflowError:  # an integer literal beyond the float range
+            value = np.float64(np.inf)
+        name = f"_c{len(self.values)}"
+        self.values[name] = value
+        return ast.copy_location(ast.Name(id=name, ctx=ast.Load()), node)
 
 
 def _compile_expression(expr: str, dim: int, fieldname: str):
-    """Compile a formula in x (and y in 3D) allowing only arithmetic and numpy maths."""
+    """Compile a formula in x (and y in 3D) allowing only arithmetic and numpy maths.
+
+    Returns ``(code, constants)``: evaluate with ``eval(code, {"__builtins__": {}},
+    {**_SAFE_FUNCS, **constants, "x": ..., "y": ...})``. The cost is bounded: at most
+    ``MAX_EXPRESSION_CHARS`` characters and ``MAX_EXPRESSION_NODES`` syntax nodes; only
+    numbers (made float64), the variables, ``+ - * / // % **``, comparisons, ``a if c
+    else b`` and calls of the functions of ``_SAFE_FUNCS`` with their own number of
+    arguments (no keywords): every intermediate value is a float or an array shaped
+    like ``x``.
+    """
     variables = {"x", "y"} if dim == 3 else {"x"}
+    if len(expr) > MAX_EXPRESSION_CHARS:
+        raise InputError(fieldname, f"the formula has {len(expr)} characters (at most {MAX_EXPRESSION_CHARS})")
     try:
-        tree = ast.parse(expr, mode="eval")
+        tree = ast.parse(expr.strip(), mode="eval")
     except SyntaxError as exc:
         raise InputError(fieldname, f"cannot parse {expr!r}: {exc.msg}") from None
+    except (ValueError, RecursionError, MemoryError) as exc:  # NUL bytes; nesting too deep
+        raise InputError(fieldname, f"cannot parse {expr!r}: {type(exc).__name__}") from None
     allowed = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Call, ast.Name, ast.Load, ast.Constant,
-               ast.operator, ast.unaryop, ast.Compare, ast.cmpop, ast.IfExp)
-    for node in ast.walk(tree):
+               ast.Compare, ast.IfExp) + _OPERATORS
+    nodes = list(ast.walk(tree))
+    if len(nodes) > MAX_EXPRESSION_NODES:
+        raise InputError(fieldname, f"the formula has {len(nodes)} syntax nodes (at most {MAX_EXPRESSION_NODES})")
+    for node in nodes:
         if not isinstance(node, allowed):
             raise InputError(fieldname, f"{type(node).__name__} is not allowed in {expr!r}")
         if isinstance(node, ast.Name) and node.id not in variables and node.id not in _SAFE_FUNCS:
             raise InputError(fieldname, f"unknown name {node.id!r} in {expr!r} (variables: {sorted(variables)})")
-    return compile(tree, "<obstacle expression>", "eval")
+        if isinstance(node, ast.Constant) and (isinstance(node.value, bool) or not isinstance(node.value, (int, float))):
+            raise InputError(fieldname, f"only real numbers may appear as constants in {expr!r}, got {node.value!r}")
+        if isinstance(node, ast.Call):
+            name = node.func.id if isinstance(node.func, ast.Name) else None
+            if name not in _ARITY or node.keywords or len(node.args) != _ARITY[name]:
+                raise InputError(fieldname, f"calls must be one of {sorted(_ARITY)} with their own number of "
+                                            f"arguments (where: 3; minimum, maximum, hypot: 2; others: 1) in {expr!r}")
+    constants = _FloatConstants()
+    tree = ast.fix_missing_locations(constants.visit(tree))
+    try:
+        return compile(tree, "<obstacle expression>", "eval"), constants.values
+    except (ValueError, RecursionError, MemoryError) as exc:
+        raise InputError(fieldname, f"cannot compile {expr!r}: {type(exc).__name__}") from None
+
+
+MAX_PSI_OVER_SPAN = 1e6
+
+
+def _check_psi(psi: np.ndarray, xp: np.ndarray, what: str, field: str, centre=None) -> np.ndarray:
+    """The obstacle at the contact nodes must be finite, >= 0 (MATH.md section 1: the
+    rigid body lies below x_d = 0 and touches the body where psi = 0) and not steeper
+    than ``MAX_PSI_OVER_SPAN`` times the zone. A psi that does not reach 0 on the zone
+    only shifts U by the gap, which is said in a warning: for a shape with a ``centre``
+    (psi = 0 there) when the centre lies outside the zone's bounding box, for a formula
+    when its minimum at the nodes exceeds half its range over them."""
+    if not np.all(np.isfinite(psi)):
+        bad = np.flatnonzero(~np.isfinite(psi))[0]
+        raise InputError(field, f"{what} is not finite at every contact node (e.g. {psi[bad]} at x' = "
+                                f"{xp[bad].tolist()})")
+    if psi.size == 0:
+        return psi
+    span = float(np.max(xp.max(axis=0) - xp.min(axis=0))) if xp.size else 0.0
+    scale = max(span, float(np.abs(psi).max()))
+    low, high = float(psi.min()), float(psi.max())
+    if low < -1e-12 * scale:
+        i = int(np.argmin(psi))
+        raise InputError(field, f"{what} is negative at contact nodes (min {low:.4g} at x' = {xp[i].tolist()}): the "
+                                "rigid body would start inside the body; psi >= 0, with 0 where it first touches")
+    if high > MAX_PSI_OVER_SPAN * span:
+        i = int(np.argmax(psi))
+        raise InputError(field, f"{what} rises to {high:.4g} at x' = {xp[i].tolist()}, more than {MAX_PSI_OVER_SPAN:g} "
+                                f"times the size {span:.4g} of the contact zone: a surface this steep touches one node "
+                                "and its values elsewhere only upset the solvers")
+    if centre is not None:
+        gap = bool(np.any((np.asarray(centre) < xp.min(axis=0)) | (np.asarray(centre) > xp.max(axis=0))))
+    else:
+        gap = low > 1e-12 * scale and low > 0.5 * (high - low)
+    if gap:
+        named = field if centre is None else field.rsplit(".", 1)[0] + ".center"
+        warnings.warn(f"{named}: the obstacle does not touch the body before loading (min psi = {low:.4g} > 0 at "
+                      "the contact nodes): U includes this initial gap", stacklevel=3)
+    return np.maximum(psi, 0.0)
 
 
 @dataclass(frozen=True)
@@ -85,32 +182,35 @@ class Obstacle:
 
     def psi(self, xp: np.ndarray, field: str = "obstacle") -> np.ndarray:
         """Evaluate psi at in-plane points ``xp`` (n, d-1); refuses points outside its domain."""
-        r2 = np.sum((xp - np.asarray(self.center)) ** 2, axis=1)
-        if self.shape in ("sphere", "cylinder"):
-            R = self.radius
-            if np.sqrt(r2.max(initial=0.0)) >= R:
-                raise InputError(
-                    f"{field}.radius",
-                    f"radius {R:g} is smaller than the contact zone (which reaches {np.sqrt(r2.max()):g} "
-                    f"from the centre {list(self.center)})",
-                )
-            return r2 / (R + np.sqrt(R * R - r2))  # = R - sqrt(R^2 - r^2), without cancellation
-        if self.shape == "paraboloid":
-            return r2 / (2.0 * self.radius)
+        with np.errstate(all="ignore"):  # overflow to inf is refused by _check_psi
+            r2 = np.sum((xp - np.asarray(self.center)) ** 2, axis=1)
+            if self.shape in ("sphere", "cylinder"):
+                R = self.radius
+                if np.sqrt(r2.max(initial=0.0)) >= R:
+                    raise InputError(
+                        f"{field}.radius",
+                        f"radius {R:g} is smaller than the contact zone (which reaches {np.sqrt(r2.max()):g} "
+                        f"from the centre {list(self.center)})",
+                    )
+                # = R - sqrt(R^2 - r^2), without cancellation
+                return _check_psi(r2 / (R + np.sqrt(R * R - r2)), xp, f"the {self.shape}", f"{field}.radius",
+                                  self.center)
+            if self.shape == "paraboloid":
+                return _check_psi(r2 / (2.0 * self.radius), xp, "the paraboloid", f"{field}.radius", self.center)
         if self.shape == "flat":
             return np.zeros(xp.shape[0])
-        code = _compile_expression(self.expression, self.dim, f"{field}.expression")
-        env = dict(_SAFE_FUNCS, x=xp[:, 0])
+        code, constants = _compile_expression(self.expression, self.dim, f"{field}.expression")
+        env = dict(_SAFE_FUNCS, **constants, x=xp[:, 0].copy())
         if self.dim == 3:
-            env["y"] = xp[:, 1]
+            env["y"] = xp[:, 1].copy()
         try:
             with np.errstate(all="ignore"):
                 val = np.broadcast_to(np.asarray(eval(code, {"__builtins__": {}}, env), dtype=float), (xp.shape[0],))
         except Exception as exc:
-            raise InputError(f"{field}.expression", f"evaluating {self.expression!r} failed: {exc}") from None
-        if not np.all(np.isfinite(val)):
-            raise InputError(f"{field}.expression", f"{self.expression!r} is not finite at every contact node")
-        return np.array(val)
+            hint = ("; conditions on x need where(condition, a, b), not 'a if condition else b' or chained "
+                    "comparisons" if "truth value" in str(exc) else "")
+            raise InputError(f"{field}.expression", f"evaluating {self.expression!r} failed: {exc}{hint}") from None
+        return _check_psi(np.array(val), xp, repr(self.expression), f"{field}.expression")
 
 
 @dataclass(frozen=True)
@@ -133,15 +233,33 @@ class Problem:
 # ----------------------------------------------------------------------------
 
 
+def _finite(val: Any) -> float | None:
+    """``val`` as a finite float (``-0.0`` made ``0.0``), or None for anything else:
+    booleans, strings, tables, lists, ``nan``, ``inf`` and integers beyond the float range."""
+    if isinstance(val, (bool, np.bool_)) or not isinstance(val, numbers.Real):
+        return None
+    try:
+        f = float(val)
+    except (OverflowError, ValueError, TypeError):
+        return None
+    return f + 0.0 if math.isfinite(f) else None
+
+
+def _short(val: Any) -> str:
+    """``repr`` of a user value, cut to one readable line."""
+    text = repr(val)
+    return text if len(text) <= 80 else text[:60] + f"... ({len(text)} characters)"
+
+
 def _number(section: Mapping, key: str, prefix: str, *, default: Any = None) -> float:
     if key not in section:
         if default is None:
             raise InputError(f"{prefix}.{key}", "is required")
         return default
-    val = section[key]
-    if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val):
-        raise InputError(f"{prefix}.{key}", f"must be a finite number, got {val!r}")
-    return float(val)
+    val = _finite(section[key])
+    if val is None:
+        raise InputError(f"{prefix}.{key}", f"must be a finite number, got {_short(section[key])}")
+    return val
 
 
 def _names(section: Mapping, key: str, prefix: str, default: Sequence[str] | None = None) -> tuple[str, ...]:
@@ -160,7 +278,7 @@ def _names(section: Mapping, key: str, prefix: str, default: Sequence[str] | Non
 def _only(section: Any, allowed: set[str], prefix: str) -> Mapping:
     if not isinstance(section, Mapping):
         raise InputError(prefix, f"must be a table, got {section!r}")
-    unknown = sorted(set(section) - allowed)
+    unknown = sorted(set(section) - allowed, key=str)
     if unknown:
         raise InputError(f"{prefix}.{unknown[0]}", f"unknown key (allowed: {sorted(allowed)})")
     return section
@@ -176,29 +294,32 @@ def make_material(E: float, nu: float, yield_stress: float, hardening: float, *,
         raise InputError(f"{prefix}.yield_stress", f"must be > 0, got {yield_stress!r}")
     if not hardening >= 0:
         raise InputError(f"{prefix}.hardening", f"must be >= 0, got {hardening!r}")
+    if nu >= 0.49:
+        warnings.warn(f"{prefix}.nu = {nu:g} is nearly incompressible (bulk / shear modulus "
+                      f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.3g}): P1 elements lock elastically and the solvers lose "
+                      "accuracy", stacklevel=2)
     if hardening == 0:
         warnings.warn(
-            "hardening = 0 is perfect plasticity: stresses are unique up to the limit load but "
-            "displacements may not be, and a force above the limit load has no solution",
+            f"{prefix}.hardening = 0 is perfect plasticity: stresses are unique up to the limit load but "
+            "displacements may not be, and a force above the limit load has no solution; it needs a mesh "
+            "whose P1 elements do not lock (in 2D pattern = \"crossed\"; P1 tetrahedra lock: in 3D use "
+            "hardening > 0), and meshes that lock are refused by the solvers",
             stacklevel=2,
         )
-    return Material(float(E), float(nu), float(yield_stress), float(hardening))
+    return Material(float(E) + 0.0, float(nu) + 0.0, float(yield_stress) + 0.0, float(hardening) + 0.0)
 
 
 def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle") -> Obstacle:
     _only(section, {"shape", "radius", "center", "expression"}, prefix)
     shape = section.get("shape")
     shapes = {"sphere", "paraboloid", "cylinder", "flat", "expression"}
-    if shape not in shapes:
-        raise InputError(f"{prefix}.shape", f"must be one of {sorted(shapes)}, got {shape!r}")
+    if not isinstance(shape, str) or shape not in shapes:
+        raise InputError(f"{prefix}.shape", f"must be one of {sorted(shapes)}, got {_short(shape)}")
     if shape == "cylinder" and dim == 3:
         raise InputError(f"{prefix}.shape", "'cylinder' is the 2D (plane strain) obstacle; use 'sphere' or 'paraboloid' in 3D")
     if shape == "sphere" and dim == 2:
         shape = "cylinder"  # the same formula with d - 1 = 1
-    center = section.get("center", [0.0] * (dim - 1))
-    if (not isinstance(center, (list, tuple)) or len(center) != dim - 1
-            or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in center)):
-        raise InputError(f"{prefix}.center", f"must be a list of {dim - 1} number(s), got {center!r}")
+    center = _float_list(section, "center", prefix, dim - 1, default=[0.0] * (dim - 1))
     radius = None
     if shape in ("sphere", "cylinder", "paraboloid"):
         radius = _number(section, "radius", prefix)
@@ -210,25 +331,26 @@ def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle") -> Obsta
         if not isinstance(expression, str):
             raise InputError(f"{prefix}.expression", "a formula string is required for shape = 'expression'")
         _compile_expression(expression, dim, f"{prefix}.expression")
-    return Obstacle(shape=shape, dim=dim, radius=radius, center=tuple(float(c) for c in center), expression=expression)
+    return Obstacle(shape=shape, dim=dim, radius=radius, center=tuple(center), expression=expression)
 
 
 def _int_list(section: Mapping, key: str, prefix: str, n: int) -> list[int]:
     val = section.get(key)
     if (not isinstance(val, (list, tuple)) or len(val) != n
-            or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in val)):
-        raise InputError(f"{prefix}.{key}", f"must be a list of {n} positive integers, got {val!r}")
-    return list(val)
+            or not all(isinstance(v, numbers.Integral) and not isinstance(v, (bool, np.bool_)) and v >= 1
+                       for v in val)):
+        raise InputError(f"{prefix}.{key}", f"must be a list of {n} positive integers, got {_short(val)}")
+    return [int(v) for v in val]
 
 
 def _float_list(section: Mapping, key: str, prefix: str, n: int, default=None) -> list[float] | None:
     if key not in section:
         return default
     val = section[key]
-    if (not isinstance(val, (list, tuple)) or len(val) != n
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in val)):
-        raise InputError(f"{prefix}.{key}", f"must be a list of {n} numbers, got {val!r}")
-    return [float(v) for v in val]
+    floats = [_finite(v) for v in val] if isinstance(val, (list, tuple)) else []
+    if len(floats) != n or any(v is None for v in floats):
+        raise InputError(f"{prefix}.{key}", f"must be a list of {n} finite number(s), got {_short(val)}")
+    return floats
 
 
 GENERATORS = {"rectangle": 2, "box": 3}
@@ -251,12 +373,12 @@ def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh") -> Mesh:
             path = base_dir / path
         return read_mesh(path)
     gen = section["generator"]
-    if gen not in GENERATORS:
-        raise InputError(f"{prefix}.generator", f"must be one of {sorted(GENERATORS)}, got {gen!r}")
+    if not isinstance(gen, str) or gen not in GENERATORS:
+        raise InputError(f"{prefix}.generator", f"must be one of {sorted(GENERATORS)}, got {_short(gen)}")
     dim = GENERATORS[gen]
     size = _float_list(section, "size", prefix, dim)
     if size is None or min(size) <= 0:
-        raise InputError(f"{prefix}.size", f"{dim} positive lengths are required, got {section.get('size')!r}")
+        raise InputError(f"{prefix}.size", f"{dim} positive lengths are required, got {_short(section.get('size'))}")
     divisions = _int_list(section, "divisions", prefix, dim)
     grading = _number(section, "grading", prefix, default=1.0)
     if not grading >= 1.0:
@@ -267,10 +389,15 @@ def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh") -> Mesh:
     origin = _float_list(section, "origin", prefix, dim)
     center = _float_list(section, "contact_center", prefix, dim - 1)
     pattern = section.get("pattern", "diagonal")
-    if pattern not in ("diagonal", "crossed") or (pattern == "crossed" and dim == 3):
-        raise InputError(f"{prefix}.pattern", f"must be 'diagonal' or (2D only) 'crossed', got {pattern!r}")
+    if not isinstance(pattern, str) or pattern not in ("diagonal", "crossed") or (pattern == "crossed" and dim == 3):
+        raise InputError(f"{prefix}.pattern", f"must be 'diagonal' or (2D only) 'crossed', got {_short(pattern)}")
     if origin is not None and origin[-1] != 0.0:
         raise InputError(f"{prefix}.origin", "the body must sit on the contact plane: the last coordinate must be 0")
+    if center is not None:
+        lower = origin[:-1] if origin is not None else [-s / 2.0 for s in size[:-1]]
+        if any(not lo <= c <= lo + s for c, lo, s in zip(center, lower, size)):
+            raise InputError(f"{prefix}.contact_center", f"{center} lies outside the bottom face "
+                                                         f"{[[lo, lo + s] for lo, s in zip(lower, size)]}")
     return structured_mesh(size, divisions, radius, origin=origin, contact_center=center, grading=grading,
                            pattern=pattern)
 
@@ -305,6 +432,26 @@ def make_boundary(section: Mapping, mesh: Mesh, generated: bool, prefix: str = "
     return Boundary(clamped=clamped, contact=contact, fix_component=fix)
 
 
+def check_generated_contact_zone(mesh: Mesh, boundary: Boundary) -> None:
+    """The generator's ``contact`` group (the bottom within ``contact_radius`` of
+    ``contact_center``) must hold facets and keep clear of the vertically fixed sides:
+    both are settings of ``mesh.contact_radius`` (and ``contact_center``), which the
+    user wrote, rather than of ``boundary.contact``, which a generated problem need not
+    mention."""
+    if "contact" not in boundary.contact:
+        return
+    if len(mesh.groups["contact"]) == 0:
+        raise InputError("mesh.contact_radius", "no bottom facet lies within contact_radius of contact_center: the "
+                                                "contact zone must cover at least one facet of the mesh")
+    contact = mesh.group_nodes(["contact"])
+    vertical = list(boundary.clamped) + list(boundary.fix_component.get(mesh.dim - 1, ()))
+    touched = [name for name in vertical if np.intersect1d(mesh.group_nodes([name]), contact).size]
+    if touched:
+        raise InputError("mesh.contact_radius", f"the contact zone reaches the side(s) {touched}, where the vertical "
+                                                "displacement is fixed: keep contact_radius (around contact_center) "
+                                                "inside the bottom face")
+
+
 SECTIONS = {"mesh", "material", "boundary", "obstacle", "load", "solver"}
 
 
@@ -322,6 +469,8 @@ def problem_from_dict(data: Mapping, base_dir: str | Path = ".") -> Problem:
     mat = _only(data["material"], {"E", "nu", "yield_stress", "hardening"}, "material")
     material = make_material(*(_number(mat, k, "material") for k in ("E", "nu", "yield_stress", "hardening")))
     boundary = make_boundary(data.get("boundary", {}), mesh, generated="generator" in data["mesh"])
+    if "generator" in data["mesh"]:
+        check_generated_contact_zone(mesh, boundary)
     obstacle = make_obstacle(data["obstacle"], mesh.dim)
     load = _only(data["load"], {"force"}, "load")
     force = _number(load, "force", "load")
@@ -330,15 +479,34 @@ def problem_from_dict(data: Mapping, base_dir: str | Path = ".") -> Problem:
     return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle, force=force)
 
 
-def read_toml(path: str | Path) -> dict:
+MAX_PROBLEM_BYTES = 16 * 2**20  # a problem file is a few hundred bytes
+
+
+def read_toml(path: str | Path, field: str = "problem", what: str = "problem file") -> dict:
+    """Parse a TOML file; every way it can fail is an :class:`InputError` naming ``field``.
+
+    Refused with one line: a missing path, a directory or device, an unreadable or
+    empty file, more than ``MAX_PROBLEM_BYTES``, text that is not UTF-8 (a UTF-8 byte
+    order mark is skipped), invalid TOML, nesting too deep for the parser.
+    """
     path = Path(path)
-    if not path.is_file():
-        raise InputError("problem", f"file not found: {path}")
+    raw = read_bytes(path, field, what, MAX_PROBLEM_BYTES)
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        raise InputError(field, f"{path} is UTF-16 text; TOML files are UTF-8 (save it as UTF-8)")
     try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(field, f"{path} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}): "
+                                "TOML files are UTF-8") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise InputError("problem", f"{path} is not valid TOML: {exc}") from None
+        raise InputError(field, f"{path} is not valid TOML: {exc}") from None
+    except (RecursionError, MemoryError) as exc:
+        raise InputError(field, f"{path} is not valid TOML: nested too deeply ({type(exc).__name__})") from None
+    if not data:
+        raise InputError(field, f"{path} holds no settings (only comments or blank lines)")
+    return data
 
 
 def load_problem(path: str | Path) -> Problem:

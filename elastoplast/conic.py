@@ -194,8 +194,10 @@ _CLARABEL_STATUS = {
     "AlmostSolved": Status.CONVERGED,
     "PrimalInfeasible": Status.INFEASIBLE,
     "AlmostPrimalInfeasible": Status.INFEASIBLE,
-    "DualInfeasible": Status.INFEASIBLE,
-    "AlmostDualInfeasible": Status.INFEASIBLE,
+    # (S) and the lower-bound programs minimise a convex quadratic bounded below: a
+    # certificate of dual infeasibility (an unbounded objective) is numerical failure
+    "DualInfeasible": Status.FAILED,
+    "AlmostDualInfeasible": Status.FAILED,
     "MaxIterations": Status.MAX_ITERATIONS,
     "MaxTime": Status.TIME_LIMIT,
 }

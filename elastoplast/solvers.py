@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from .accelerated import FastOptions, solve_accelerated
+from .checks import check_perfect_plasticity
 from .conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
 from .discretize import Discretization
 from .errors import InputError
@@ -67,7 +68,10 @@ MAX_PRESSURE_OVER_E = 1e3
 
 def check_solvable(disc: Discretization, method: str, options: SolverOptions | None = None) -> None:
     """Refuse, before any work, a problem ``method`` cannot answer faithfully
-    (with ``options``, also options that do not suit the problem)."""
+    (with ``options``, also options that do not suit the problem): perfect
+    plasticity on a mesh that locks, an absurd force, a mesh too large for the
+    conic reference."""
+    check_perfect_plasticity(disc)
     area = float(disc.contact_area.sum())
     if area > 0 and disc.force / area > MAX_PRESSURE_OVER_E * disc.material.E:
         raise InputError("load.force", f"{disc.force:g} over the contact zone's area {area:g} is a mean pressure of "

@@ -219,7 +219,8 @@ def test_perfect_plasticity_warns_and_reports_the_limit_load(tmp_path, capsys):
     lock under plastic incompressibility.)
     """
     sigma_y = 250.0
-    data = {"mesh": {"generator": "rectangle", "size": [1.0, 4.0], "divisions": [4, 8], "contact_radius": 1.0},
+    data = {"mesh": {"generator": "rectangle", "size": [1.0, 4.0], "divisions": [4, 8], "contact_radius": 1.0,
+                     "pattern": "crossed"},  # P1 triangles two per square lock: refused with H = 0
             "material": {"E": 200e3, "nu": 0.3, "yield_stress": sigma_y, "hardening": 0.0},
             "boundary": {"clamped": ["top"], "contact": ["bottom"]},
             "obstacle": {"shape": "flat"}, "load": {"force": 1000 * sigma_y * 1.0}}

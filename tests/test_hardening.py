@@ -302,3 +302,18 @@ def test_campaign_checks_problem_dependent_options_before_running(tmp_path):
     with pytest.raises(ep.InputError) as exc:
         load_campaign(path)
     assert exc.value.field == "sweep.solver.rho" and "1.0" in exc.value.message
+
+
+@pytest.mark.parametrize("method", ["conic", *ITERATIVE])
+def test_tiny_force_is_solved_by_every_method(method):
+    """F = 1e-12 on the cylinder: displacements 1e-15 of the obstacle's height at the
+    edge of the contact zone. Every method used to fail here (conic called it
+    'above the limit load', Uzawa diverged). Hencky's law is linear below first yield,
+    so U scales with F; the check is the certificate at the method's own tol and
+    U / F against the same problem at F = 1e-2 (both elastic, single-node contact)."""
+    small = build(small_cylinder())
+    tiny, ref = small.with_force(1e-12), small.with_force(1e-2)
+    sol, sol_ref = ep.solve(tiny, method), ep.solve(ref, method)
+    assert sol.converged and sol_ref.converged, (sol.message, sol_ref.message)
+    assert not sol.plastic.any()
+    assert sol.U / 1e-12 == pytest.approx(sol_ref.U / 1e-2, rel=1e-5)

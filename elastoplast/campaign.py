@@ -164,7 +164,7 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
         path = base_dir / str(head["problem"])
         if not path.is_file():
             raise InputError("campaign.problem", f"file not found: {path}")
-        base, problem_dir = read_toml(path), path.parent
+        base, problem_dir = read_toml(path, field="campaign.problem"), path.parent
     for section in SECTIONS & set(data):
         if not isinstance(data[section], Mapping):
             raise InputError(section, f"must be a table, got {data[section]!r}")
@@ -215,7 +215,7 @@ def load_campaign(path: str | Path) -> Campaign:
     path = Path(path)
     if not path.is_file():
         raise InputError("campaign", f"file not found: {path}")
-    return campaign_from_dict(read_toml(path), path.parent, name=path.stem)
+    return campaign_from_dict(read_toml(path, field="campaign", what="campaign file"), path.parent, name=path.stem)
 
 
 # ----------------------------------------------------------------------------

@@ -16,6 +16,7 @@ from .errors import InputError
 from .material import Material, return_mapping, von_mises
 from .mesh import Mesh, read_mesh, structured_mesh
 from .problem import Boundary, Obstacle, Problem, load_problem, make_material, problem_from_dict
+from .refine import BisectionState, dorfler_mark, prolong_p1, refine, shape_quality
 from .solution import Solution, Status, make_solution, summary
 from .newton import NewtonOptions, solve_newton
 from .solvers import METHODS, solve
@@ -24,9 +25,9 @@ from .uzawa import UzawaOptions, load_sweep, solve_uzawa
 __version__ = "0.1.0"
 
 __all__ = [
-    "Boundary", "ConicOptions", "Discretization", "InputError", "KKTResiduals", "METHODS", "Material", "Mesh",
-    "NewtonOptions", "Obstacle", "Problem", "Solution", "Status", "UzawaOptions", "certify", "discretize",
-    "load_problem", "load_sweep", "make_material", "make_solution", "problem_from_dict", "read_mesh",
-    "return_mapping", "solve", "solve_conic", "solve_conic_cvxpy", "solve_conic_displacement", "solve_newton",
+    "BisectionState", "Boundary", "ConicOptions", "Discretization", "InputError", "KKTResiduals", "METHODS", "Material", "Mesh",
+    "NewtonOptions", "Obstacle", "Problem", "Solution", "Status", "UzawaOptions", "certify", "discretize", "dorfler_mark",
+    "load_problem", "load_sweep", "make_material", "make_solution", "problem_from_dict", "prolong_p1", "read_mesh",
+    "refine", "return_mapping", "shape_quality", "solve", "solve_conic", "solve_conic_cvxpy", "solve_conic_displacement", "solve_newton",
     "solve_uzawa", "structured_mesh", "summary", "von_mises",
 ]

@@ -374,23 +374,32 @@ def refine(mesh: Mesh, marked, state: BisectionState | None = None, *,
     n = mesh.n_elements
     todo = np.where(_marked_mask(marked, n), k, 0).astype(np.int16)
 
-    cells, sign, marks, flagged, gen = state.cells, state.orientation, state.marks, state.flagged, state.generation
-    origin = np.arange(n)
-    tags, members = _facet_tags(mesh, cells)
+    # per-element arrays, grown in place: a bisected element's first child
+    # takes its slot, the second is appended
+    el = {"cells": state.cells.copy(), "sign": state.orientation.copy(), "marks": state.marks.copy(),
+          "flagged": state.flagged.copy(), "gen": state.generation.copy(), "origin": np.arange(n),
+          "tags": None, "todo": todo}
+    el["tags"], members = _facet_tags(mesh, el["cells"])
     points = np.asarray(mesh.points, dtype=float)
     parents = [state.node_parents]
     keys = np.zeros(0, dtype=np.int64)  # bisected edges (sorted) and their midpoints
     mids = np.zeros(0, dtype=np.int64)
+    pending = np.flatnonzero(todo > 0)  # elements with bisections left
     check = np.zeros(0, dtype=np.int64)  # elements that may carry a hanging node
     endpoint = np.zeros(mesh.n_nodes, dtype=bool)  # nodes at an end of a bisected edge
     child1, child2, sign1, sign2 = _CHILD1[d], _CHILD2[d], _SIGN1[d], _SIGN2[d]
-    max_rounds = 100 + 10 * (int(gen.max(initial=0)) + k)
+    max_rounds = 100 + 10 * (int(state.generation.max(initial=0)) + k)
+    n_el = n  # elements in use; the arrays in el have room for more
     for _ in range(max_rounds):
-        bis = todo > 0
+        cells = el["cells"]
         if check.size and keys.size:
-            cand = check[~bis[check]]
-            bis[cand[_has_bisected_edge(cells[cand], keys, endpoint)]] = True
-        B = np.flatnonzero(bis)
+            is_pending = np.zeros(n_el, dtype=bool)
+            is_pending[pending] = True
+            cand = check[~is_pending[check]]
+            hanging = cand[_has_bisected_edge(cells[cand], keys, endpoint)]
+            B = np.concatenate([pending, hanging])
+        else:
+            B = pending
         if B.size == 0:
             break
         # midpoints of the refinement edges: existing ones, then new nodes
@@ -414,47 +423,53 @@ def refine(mesh: Mesh, marked, state: BisectionState | None = None, *,
 
         # children, in their own labelled order
         ext = np.concatenate([cells[B], z[:, None]], axis=1)
-        ma, mb = marks[B, 0].astype(np.int64), marks[B, 1].astype(np.int64)
+        ma, mb = el["marks"][B, 0].astype(np.int64), el["marks"][B, 1].astype(np.int64)
         p1, p2 = child1[ma], child2[mb]
-        t = tags[B]
+        t = el["tags"][B]
         none = -np.ones((B.size, 1), dtype=np.int64)
         ext_t1 = np.concatenate([none, none, t[:, 2:], t[:, 1:2]], axis=1)
         ext_t2 = np.concatenate([none, none, t[:, 2:], t[:, 0:1]], axis=1)
-        child_marks = np.zeros((B.size, 2), dtype=np.int8)
-        child_flag = np.zeros(B.size, dtype=bool)
+        marks = np.zeros((B.size, 2), dtype=np.int8)
+        flag = np.zeros(B.size, dtype=bool)
         if d == 3:
             planar = (ma == mb) & (ma < 2)
-            child_marks[:, 1] = planar & flagged[B]  # new face marked at z p
-            child_flag = planar & ~flagged[B]
+            marks[:, 1] = planar & el["flagged"][B]  # new face marked at z p
+            flag = planar & ~el["flagged"][B]
+        sign = el["sign"][B]
+        left = np.maximum(el["todo"][B] - 1, 0).astype(np.int16)
+        first = {"cells": np.take_along_axis(ext, p1, 1), "sign": sign * sign1[ma], "marks": marks, "flagged": flag,
+                 "gen": el["gen"][B] + 1, "origin": el["origin"][B], "tags": np.take_along_axis(ext_t1, p1, 1),
+                 "todo": left}
+        second = {**first, "cells": np.take_along_axis(ext, p2, 1), "sign": sign * sign2[mb],
+                  "tags": np.take_along_axis(ext_t2, p2, 1)}
+        new = n_el + np.arange(B.size)
+        for name, a in el.items():
+            if a.shape[0] < n_el + B.size:  # double at least: amortised O(1) per element
+                a = np.concatenate([a[:n_el], np.empty((max(B.size, n_el),) + a.shape[1:], a.dtype)])
+            a[B], a[new] = first[name], second[name]
+            el[name] = a
+        pending = np.concatenate([B[left > 0], new[left > 0]])
 
-        keep = np.flatnonzero(~bis)
-        nk = keep.size
-        cells = np.concatenate([cells[keep], np.take_along_axis(ext, p1, 1), np.take_along_axis(ext, p2, 1)])
-        sign = np.concatenate([sign[keep], sign[B] * sign1[ma], sign[B] * sign2[mb]]).astype(np.int8)
-        tags = np.concatenate([tags[keep], np.take_along_axis(ext_t1, p1, 1), np.take_along_axis(ext_t2, p2, 1)])
-        marks = np.concatenate([marks[keep], child_marks, child_marks])
-        flagged = np.concatenate([flagged[keep], child_flag, child_flag])
-        gen = np.concatenate([gen[keep], gen[B] + 1, gen[B] + 1])
-        origin = np.concatenate([origin[keep], origin[B], origin[B]])
-        left = np.maximum(todo[B] - 1, 0)
-        todo = np.concatenate([todo[keep], left, left])
-
-        # next round checks the children and the untouched simplices that
-        # contain both ends of an edge bisected in this round
+        # next round checks the children and the simplices that contain both
+        # ends of an edge bisected in this round
         touched = np.zeros(points.shape[0], dtype=bool)
         touched[lo] = touched[hi] = True
-        near = np.flatnonzero(touched[cells[:nk]].sum(axis=1) >= 2)
-        check = np.concatenate([near, np.arange(nk, cells.shape[0])])
+        recheck = touched[el["cells"][:n_el]].sum(axis=1, dtype=np.uint8) >= 2
+        recheck[B] = True
+        check = np.concatenate([np.flatnonzero(recheck), new])
+        n_el += B.size
     else:
         raise RuntimeError(f"bisection closure did not end within {max_rounds} rounds")
 
+    el = {name: a[:n_el] for name, a in el.items()}
+    cells, sign, tags = el["cells"], el["sign"], el["tags"]
     oriented = cells.copy()
     neg = sign < 0
     oriented[neg, :2] = oriented[neg, 1::-1]
     groups = _refined_groups(mesh, points, cells, tags, members)
-    new_state = BisectionState(cells=cells, orientation=sign, marks=marks, flagged=flagged, generation=gen,
-                               node_parents=np.concatenate(parents))
-    return Mesh(points=points, cells=oriented, groups=groups), new_state, origin
+    new_state = BisectionState(cells=cells, orientation=sign, marks=el["marks"], flagged=el["flagged"],
+                               generation=el["gen"], node_parents=np.concatenate(parents))
+    return Mesh(points=points, cells=oriented, groups=groups), new_state, el["origin"]
 
 
 def prolong_p1(state: BisectionState, values: np.ndarray) -> np.ndarray:

@@ -461,7 +461,7 @@ def refine(mesh: Mesh, marked, state: BisectionState | None = None, *,
     else:
         raise RuntimeError(f"bisection closure did not end within {max_rounds} rounds")
 
-    el = {name: a[:n_el] for name, a in el.items()}
+    el = {name: a[:n_el].copy() if a.shape[0] > n_el else a for name, a in el.items()}  # release the spare room
     cells, sign, tags = el["cells"], el["sign"], el["tags"]
     oriented = cells.copy()
     neg = sign < 0

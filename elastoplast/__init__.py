@@ -18,6 +18,7 @@ from .errors import InputError
 from .material import Material, return_mapping, von_mises
 from .mesh import Mesh, read_mesh, structured_mesh
 from .problem import Boundary, Obstacle, Problem, load_problem, make_material, problem_from_dict
+from .refinement import BisectionState, dorfler_mark, prolong_p1, refine, shape_quality
 from .solution import Solution, Status, make_solution, summary
 from .newton import NewtonOptions, solve_newton
 from .accelerated import FastOptions
@@ -28,11 +29,11 @@ from .uzawa import UzawaOptions, load_sweep, solve_uzawa
 __version__ = "0.2.0"
 
 __all__ = [
-    "Boundary", "ConicOptions", "Discretization", "FastOptions", "InputError", "KKTResiduals", "METHODS", "Material",
-    "Mesh", "NewtonOptions", "Obstacle", "Problem", "Solution", "SolverOptions", "Status", "UzawaOptions", "certify",
-    "discretize", "load_problem", "load_sweep", "make_material", "make_solution", "method_options",
-    "problem_from_dict", "read_mesh",
-    "return_mapping", "solve", "solve_conic", "solve_conic_cvxpy", "solve_conic_displacement", "solve_newton",
+    "BisectionState", "Boundary", "ConicOptions", "Discretization", "FastOptions", "InputError", "KKTResiduals",
+    "METHODS", "Material", "Mesh", "NewtonOptions", "Obstacle", "Problem", "Solution", "SolverOptions", "Status",
+    "UzawaOptions", "certify", "discretize", "dorfler_mark", "load_problem", "load_sweep", "make_material",
+    "make_solution", "method_options", "problem_from_dict", "prolong_p1", "read_mesh", "refine", "return_mapping",
+    "shape_quality", "solve", "solve_conic", "solve_conic_cvxpy", "solve_conic_displacement", "solve_newton",
     "solve_uzawa", "structured_mesh", "summary", "von_mises",
     "LowerBound", "LowerBoundOptions", "StaticCertificate", "StaticField", "certify_static", "dual_energy",
     "solve_lower_bound", "static_limit_load",

@@ -12,6 +12,8 @@ The data flows mesh -> discretisation -> solver -> certificate -> output::
 from .certificate import KKTResiduals, certify
 from .conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
 from .discretize import Discretization, discretize
+from .equilibrium import (LowerBound, LowerBoundOptions, StaticCertificate, StaticField, certify_static, dual_energy,
+                          solve_lower_bound, static_limit_load)
 from .errors import InputError
 from .material import Material, return_mapping, von_mises
 from .mesh import Mesh, read_mesh, structured_mesh
@@ -29,4 +31,6 @@ __all__ = [
     "load_problem", "load_sweep", "make_material", "make_solution", "problem_from_dict", "read_mesh",
     "return_mapping", "solve", "solve_conic", "solve_conic_cvxpy", "solve_conic_displacement", "solve_newton",
     "solve_uzawa", "structured_mesh", "summary", "von_mises",
+    "LowerBound", "LowerBoundOptions", "StaticCertificate", "StaticField", "certify_static", "dual_energy",
+    "solve_lower_bound", "static_limit_load",
 ]

@@ -495,7 +495,7 @@ class LowerBoundOptions:
     """Settings of the lower-bound programs.
 
     ``tol``, ``max_iter``, ``verbose``, ``time_limit``, ``linear_solver``: Clarabel's, as
-    in :class:`~elastoplast.conic.ConicOptions`. ``yield_margin``: with H = 0 the
+    in :class:`~elastoplast.conic.ConicOptions` (``"auto"``: see :data:`FAER_FROM_ELEMENTS_3D`). ``yield_margin``: with H = 0 the
     energy program is solved with the yield stress ``(1 - yield_margin) sigma_y``, so
     that the repair's correction (of the size of the solver's residuals) cannot push a
     vertex outside the true yield surface; the bound is still valid for sigma_y and
@@ -508,10 +508,23 @@ class LowerBoundOptions:
     max_iter: int = 200
     verbose: bool = False
     time_limit: float = float("inf")
-    linear_solver: str = "qdldl"
+    linear_solver: str = "auto"
     yield_margin: float = 1e-8
     certify_tol: float = CERTIFY_TOL
     psi_subdivisions: int = 4
+
+
+#: 3D meshes from this many elements use Clarabel's faer factorisation, smaller ones and
+#: 2D QDLDL. Measured (benchmarks/bounds/lower.md, quarter sphere, whole lower bound, 2
+#: cores): 162 tetrahedra QDLDL 0.4 s / faer 1.5 s; 288: 2.4 / 4.3; 600: 10.0 / 11.0;
+#: 1080: about 125 / 34.
+FAER_FROM_ELEMENTS_3D = 600
+
+
+def _kkt_solver(disc: Discretization, options: "LowerBoundOptions") -> str:
+    if options.linear_solver != "auto":
+        return options.linear_solver
+    return "faer" if disc.dim == 3 and disc.n_elements >= FAER_FROM_ELEMENTS_3D else "qdldl"
 
 
 @dataclass(frozen=True)
@@ -816,13 +829,12 @@ def _setup(disc: Discretization, options: LowerBoundOptions, force: float | None
     return _Setup(topo, psi, nd, units, grads * units.length)
 
 
-def _clarabel(prog: Program, options: LowerBoundOptions):
+def _clarabel(prog: Program, options: LowerBoundOptions, solver: str = "qdldl"):
     import clarabel
 
     conic = ConicOptions(tol=options.tol, max_iter=options.max_iter, verbose=options.verbose,
-                         time_limit=options.time_limit, linear_solver=options.linear_solver)
-    res = clarabel.DefaultSolver(prog.P, prog.q, prog.A, prog.b, prog.cones,
-                                 clarabel_settings(conic, options.linear_solver)).solve()
+                         time_limit=options.time_limit)
+    res = clarabel.DefaultSolver(prog.P, prog.q, prog.A, prog.b, prog.cones, clarabel_settings(conic, solver)).solve()
     raw = str(res.status).split(".")[-1]
     return _CLARABEL_STATUS.get(raw, Status.FAILED), raw, np.asarray(res.x), float(res.obj_val), int(res.iterations)
 
@@ -880,7 +892,7 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
         t1 = time.perf_counter()
         prog = progs[with_yield] = lower_bound_program(nd_, s.topo, s.grads, q_nd, with_yield=with_yield)
         t2 = time.perf_counter()
-        status, raw, x, obj, iters = _clarabel(prog, options)
+        status, raw, x, obj, iters = _clarabel(prog, options, _kkt_solver(disc, options))
         timings["assemble"] = timings.get("assemble", 0.0) + t2 - t1
         timings["solve"] = timings.get("solve", 0.0) + time.perf_counter() - t2
         tau = x[prog.cols["tau"]].reshape(-1, nd_.k) / np.repeat(prog.weights, nd_.dim + 1)[:, None]
@@ -935,7 +947,7 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     prog = lower_bound_program(s.nd, s.topo, s.grads, np.zeros_like(s.psi.q), limit=True)
     timings["setup"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    status, raw, x, obj, iters = _clarabel(prog, options)
+    status, raw, x, obj, iters = _clarabel(prog, options, _kkt_solver(disc, options))
     timings["solve"] = time.perf_counter() - t1
     F_solver = float(x[prog.cols["force"]] * s.units.force) if x.size else float("nan")
     empty = StaticField(np.zeros((disc.n_elements, disc.dim + 1, disc.k)), np.zeros((disc.n_elements, disc.dim + 1)),

@@ -48,6 +48,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .discretize import Discretization, _element_geometry, strain_operator
+from .equilibrium import LimitLowerBound, LowerBoundOptions, static_limit_load
 from .errors import InputError
 from .material import identity_vector
 from .mesh import Mesh
@@ -421,15 +422,17 @@ def kinematic_limit_load(disc: Discretization, options: LimitOptions = LimitOpti
 class LimitBracket:
     """``F_lower <= F_c <= F_upper`` on one mesh; ``ratio = F_upper / F_lower``.
 
-    ``F_lower`` is NaN when the static program is not available. ``certified``
-    holds only when both bounds are.
+    ``upper``: the :class:`KinematicBound`; ``lower``: the
+    :class:`~elastoplast.equilibrium.LimitLowerBound` of the equilibrium element.
+    ``certified`` holds only when both bounds are proofs; ``message`` adds, for a
+    curved obstacle, that the load is not a physical limit load.
     """
 
     F_lower: float
     F_upper: float
     certified: bool
     upper: KinematicBound
-    lower: object | None
+    lower: LimitLowerBound
     message: str
 
     @property
@@ -437,27 +440,27 @@ class LimitBracket:
         return self.F_upper / self.F_lower if self.F_lower > 0 else np.inf
 
     def as_dict(self) -> dict:
+        """A JSON-ready summary."""
         return {"F_lower": self.F_lower, "F_upper": self.F_upper, "ratio": self.ratio, "certified": self.certified,
+                "lower_certified": bool(self.lower.certified), "upper_certified": self.upper.certified,
                 "upper_order": self.upper.order, "upper_trace_residual": self.upper.trace_residual,
-                "upper_time_s": self.upper.time_s, "message": self.message}
+                "lower_time_s": float(self.lower.timings.get("total", np.nan)), "upper_time_s": self.upper.time_s,
+                "message": self.message}
 
 
-def limit_load(disc: Discretization, options: LimitOptions = LimitOptions(), lower_options=None) -> LimitBracket:
-    """``F_lower <= F_c <= F_upper`` from the static (equilibrium element) and
-    kinematic programs on ``disc``'s mesh."""
+def limit_load(disc: Discretization, options: LimitOptions = LimitOptions(),
+               lower_options: LowerBoundOptions = LowerBoundOptions()) -> LimitBracket:
+    """``F_lower <= F_c <= F_upper`` from the static program of the equilibrium
+    element (:func:`~elastoplast.equilibrium.static_limit_load`) and the kinematic
+    program (:func:`kinematic_limit_load`) on ``disc``'s mesh; ``disc.force`` is
+    not used."""
     _check_perfectly_plastic(disc)
     upper = kinematic_limit_load(disc, options)
-    try:
-        from .equilibrium import static_limit_load
-    except ImportError:
-        static_limit_load = None
-    if static_limit_load is None:
-        return LimitBracket(F_lower=np.nan, F_upper=upper.F_upper, certified=False, upper=upper, lower=None,
-                            message=upper.message + "; no static program (elastoplast.equilibrium) available")
-    lower = static_limit_load(disc) if lower_options is None else static_limit_load(disc, lower_options)
+    lower = static_limit_load(disc, lower_options)
+    notes = [f"upper: {upper.message}", f"lower: {lower.message}"]
     return LimitBracket(F_lower=float(lower.F_lower), F_upper=upper.F_upper,
                         certified=bool(upper.certified and lower.certified), upper=upper, lower=lower,
-                        message=upper.message)
+                        message="; ".join(notes))
 
 
 __all__ = ["KinematicBound", "LimitBracket", "LimitOptions", "VelocitySpace", "dissipation", "kinematic_limit_load",

@@ -24,8 +24,7 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast.limit import (LimitOptions, dissipation, kinematic_limit_load, kinematic_program, limit_load,
-                               velocity_space)
+from elastoplast.limit import LimitOptions, dissipation, kinematic_limit_load, limit_load, velocity_space
 
 SY = 250.0
 K = SY / np.sqrt(3.0)
@@ -115,11 +114,9 @@ def test_prandtl_bracket_on_a_graded_crossed_punch():
     assert contact_measure(disc) == pytest.approx(1.0)
     prandtl = (2 + np.pi) * K
     res = limit_load(disc)
-    assert res.upper.certified
-    assert res.F_upper >= prandtl
-    if res.lower is not None:
-        assert res.lower.certified
-        assert res.F_lower <= prandtl <= res.F_upper
+    assert res.certified, res.message
+    assert res.F_lower <= prandtl <= res.F_upper
+    assert res.ratio == pytest.approx(res.F_upper / res.F_lower)
 
 
 def test_diagonal_p1_locks_and_p2_does_not():
@@ -139,10 +136,8 @@ def test_3d_flat_punch_bound_lies_above_the_static_column():
     assert res.F_upper >= SY * contact_measure(disc)
     p1 = kinematic_limit_load(disc, LimitOptions(order=1))
     assert p1.F_upper >= res.F_upper  # P1 inside P2 (P1 tetrahedra lock: here infinite)
-    if res.lower is not None:
-        assert res.lower.certified
-        assert res.F_lower <= res.F_upper
-        assert res.F_lower >= SY * contact_measure(disc) * (1 - 1e-9)  # the column is in the static space
+    assert res.certified, res.message
+    assert res.F_lower <= res.F_upper
 
 
 @pytest.mark.parametrize("order", [1, 2])
@@ -202,4 +197,3 @@ def test_kinematic_program_is_dimensionless():
         disc = make(mesh, clamped=("xmax", "top"), fix={0: ("xmin",)})
         vals.append(kinematic_limit_load(disc, LimitOptions(order=1)).F_upper / s)
     assert vals[1] == pytest.approx(vals[0], rel=1e-6)
-    assert kinematic_program  # the assembly the CVXPY test checks

@@ -126,6 +126,10 @@ class Penetration:
     certified: bool
     method: str
 
+    def __iter__(self):
+        """``max_penetration, facet_gap = penetration_bound(...)`` unpacks the two bounds."""
+        return iter((self.max_penetration, self.facet_gap))
+
 
 def _expression_gap(disc: Discretization, X: np.ndarray, base: np.ndarray) -> tuple[np.ndarray | None, str]:
     """Facet lower bounds ``min_pieces [min_corners I_h(v_d - V) + inf_piece psi]`` for an

@@ -116,7 +116,8 @@ def test_facet_rule_for_the_cylinder_lies_between_the_curvature_bounds():
     assert np.all(pen.facet_gap <= true + 1e-14)
     r = bd.enclosing_radius(disc.mesh.points[pen.facets][:, :, :-1])
     assert np.all(-true >= (1 / 5.0) * r**2 / 2 * (1 - 1e-4))  # psi'' >= 1/R: the dip is at least this
-    assert pen.max_penetration == pytest.approx(-pen.facet_gap.min())
+    max_pen, facet_gap = pen
+    assert max_pen == pytest.approx(-facet_gap.min())
 
 
 def test_facet_rule_is_exact_for_the_paraboloid_on_right_triangles():

@@ -120,6 +120,13 @@ def report(results: dict) -> str:
         ratio = min(r["upper-1"]["F"], r["upper-2"]["F"]) / r["lower"]["F"]
         lines += ["", f"Finest graded crossed mesh (n = {n}): ratio {ratio:.4f}, goal {GOAL}: "
                       f"{'met' if ratio <= GOAL else 'missed'}."]
+    lines += ["", "Reading the table: every F_lower lies below Prandtl's load and every F_upper above it, as the two "
+              "theorems require (F_c is exactly Prandtl's load for this block). Grading toward the punch edge, where "
+              "the velocity field fans out, matters more than the element count: at 8192 triangles the uniform mesh "
+              "brackets within 2.2%, the graded one within 0.4%. On the crossed pattern P1 and P2 give about the same "
+              "bound for the same time (P2 on a mesh twice as coarse); P2 does not need the crossed pattern (the "
+              "diagonal rows: P1 locks there, the bound is infinite), and in 3D P1 locks on practically any mesh, so "
+              "P2 is the default (LimitOptions.order)."]
     return "\n".join(lines) + "\n"
 
 

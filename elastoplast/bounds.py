@@ -44,8 +44,11 @@ from .certificate import energy_norm_sq, gaps
 from .discretize import Discretization
 from .material import Material, return_mapping
 
-#: most pieces per facet edge for an expression obstacle (2D: that many pieces, 3D: its square)
-EXPRESSION_PIECES = {2: 256, 3: 32}
+#: most pieces per facet edge for an expression obstacle (1, 4, 16, ... up to this; 2D: that many
+#: pieces per facet, 3D: its square)
+EXPRESSION_PIECES = {2: 256, 3: 16}
+#: boxes enclosed per call (bounds the memory of the expression enclosure)
+BOXES_PER_CALL = 200_000
 
 
 # ----------------------------------------------------------------------------
@@ -144,16 +147,16 @@ def _expression_gap(disc: Discretization, X: np.ndarray, base: np.ndarray) -> tu
     m = 1
     while todo.size:
         bary = _pieces(d, m)  # (P, d corners, d vertices)
-        corners = np.einsum("pva,fac->fpvc", bary, X[todo])
-        pad = (1e-12 * size[todo] + np.finfo(float).tiny)[:, None, None]
-        lo, hi = corners.min(axis=2) - pad, corners.max(axis=2) + pad
-        try:
-            inf_psi, _ = enclose(ob.expression, d, lo.reshape(-1, d - 1), hi.reshape(-1, d - 1))
-        except Unbounded as exc:
-            return None, str(exc)
-        linear = np.einsum("pva,fa->fpv", bary, base[todo]).min(axis=2)  # exact for linear I_h
-        bound = (linear + inf_psi.reshape(linear.shape)).min(axis=1)
-        lower[todo] = np.maximum(lower[todo], bound)
+        for chunk in np.array_split(todo, max(1, todo.size * bary.shape[0] // BOXES_PER_CALL)):
+            corners = np.einsum("pva,fac->fpvc", bary, X[chunk])
+            pad = (1e-12 * size[chunk] + np.finfo(float).tiny)[:, None, None]
+            lo, hi = corners.min(axis=2) - pad, corners.max(axis=2) + pad
+            try:
+                inf_psi, _ = enclose(ob.expression, d, lo.reshape(-1, d - 1), hi.reshape(-1, d - 1))
+            except Unbounded as exc:
+                return None, str(exc)
+            linear = np.einsum("pva,fa->fpv", bary, base[chunk]).min(axis=2)  # exact for linear I_h
+            lower[chunk] = np.maximum(lower[chunk], (linear + inf_psi.reshape(linear.shape)).min(axis=1))
         m *= 4
         if m > EXPRESSION_PIECES[d]:
             break

@@ -12,8 +12,8 @@ squares per b, graded (power 2) toward the punch edge, which is a node.
 For each mesh: the static program of the equilibrium element (``static_limit_load``)
 and the kinematic program with P1 and P2 velocities (``kinematic_limit_load``),
 each in its own process, time and peak memory; ratio = F_upper / F_lower. Also: the
-same meshes without grading, and the P2 bound on the two-triangle (diagonal)
-pattern, where P1 locks. Writes ``limit.json`` and ``limit.md`` beside this file (or
+same meshes without grading, the P2 bound on the two-triangle (diagonal) pattern,
+where P1 locks, and a 3D quarter model of a flat circular punch. Writes ``limit.json`` and ``limit.md`` beside this file (or
 into ``--out``; ``--quick`` writes into ``benchmarks/bounds/quick/``).
 """
 
@@ -39,6 +39,9 @@ FULL = ([(n, 2.0, "crossed", w) for n in (2, 4, 8, 16, 32) for w in ("lower", "u
         + [(n, 1.0, "crossed", w) for n in (4, 8, 16) for w in ("lower", "upper-1", "upper-2")]
         + [(n, 2.0, "diagonal", w) for n in (4, 8, 16) for w in ("lower", "upper-1", "upper-2")])
 QUICK = [(n, 2.0, "crossed", w) for n in (2, 4) for w in ("lower", "upper-1", "upper-2")]
+#: 3D: a quarter model of a flat circular punch (radius 1) on a 2 x 2 x 2 block, n elements per unit length
+FULL_3D = [(n, w) for n in (2, 3, 4) for w in ("lower", "upper-1", "upper-2")]
+QUICK_3D = [(2, w) for w in ("lower", "upper-1", "upper-2")]
 
 
 def half_punch(n: int, grading: float, pattern: str):
@@ -59,12 +62,38 @@ def half_punch(n: int, grading: float, pattern: str):
                                         obstacle=ep.Obstacle("flat", 2, center=(0.0,)), force=1.0))
 
 
+def quarter_punch(n: int):
+    """Quarter model (symmetry planes x = 0, y = 0) of a flat punch of radius 1 on a
+    2 x 2 x 2 block clamped on its other sides and top; Γ0 is the union of the bottom
+    facets inside the radius (a staircase polygon)."""
+    import warnings
+
+    import elastoplast as ep
+
+    mesh = ep.structured_mesh([2.0, 2.0, 2.0], [2 * n] * 3, contact_radius=1.0, origin=[0.0, 0.0, 0.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # perfect plasticity
+        return ep.discretize(ep.Problem(mesh=mesh, material=ep.Material(1000.0, 0.3, 1.0, 0.0),
+                                        boundary=ep.Boundary(("xmax", "ymax", "top"), ("contact",),
+                                                             {0: ("xmin",), 1: ("ymin",)}),
+                                        obstacle=ep.Obstacle("flat", 3, center=(0.0, 0.0)), force=1.0))
+
+
+def contact_area(disc) -> float:
+    cf = np.concatenate([disc.mesh.groups[name] for name in disc.problem.boundary.contact])
+    X = disc.mesh.points[cf][:, :, :2]
+    u, v = X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]
+    return float(0.5 * np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]).sum())
+
+
 def run_one(n: int, grading: float, pattern: str, what: str) -> dict:
     from elastoplast.equilibrium import static_limit_load
     from elastoplast.limit import LimitOptions, kinematic_limit_load
 
-    disc = half_punch(n, grading, pattern)
+    disc = quarter_punch(n) if pattern == "3d" else half_punch(n, grading, pattern)
     out = {"n_elements": int(disc.n_elements)}
+    if pattern == "3d":
+        out["contact_area"] = contact_area(disc)
     t0 = time.perf_counter()
     if what == "lower":
         r = static_limit_load(disc)
@@ -104,6 +133,8 @@ def report(results: dict) -> str:
              "| ratio | certified | lower s | P1 s | P2 s | lower MB | P2 MB |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for (n, g, pat), r in _rows(results).items():
+        if pat == "3d":
+            continue
         lo, p1, p2 = r.get("lower", {}), r.get("upper-1", {}), r.get("upper-2", {})
         if any("error" in x for x in (lo, p1, p2)):
             lines.append(f"| {pat} | {g:g} | {n} | error: {lo.get('error', '')} {p1.get('error', '')} {p2.get('error', '')} |")
@@ -120,6 +151,22 @@ def report(results: dict) -> str:
         ratio = min(r["upper-1"]["F"], r["upper-2"]["F"]) / r["lower"]["F"]
         lines += ["", f"Finest graded crossed mesh (n = {n}): ratio {ratio:.4f}, goal {GOAL}: "
                       f"{'met' if ratio <= GOAL else 'missed'}."]
+    rows3 = [(n, r) for (n, g, pat), r in _rows(results).items() if pat == "3d"]
+    if rows3:
+        lines += ["", "3D: quarter model of a flat circular punch (radius 1, Γ0 the bottom facets inside it) on a "
+                  "2 x 2 x 2 block, uniform tetrahedra, n per unit length; forces in units of sigma_y |Γ0| (the "
+                  "uniaxial column under Γ0 is admissible, so F_c >= sigma_y |Γ0|). P1 tetrahedra lock.", "",
+                  "| n | tetrahedra | F_lower / (sigma_y A) | F_upper P1 / (sigma_y A) | F_upper P2 / (sigma_y A) | ratio "
+                  "| certified | lower s | P2 s | lower MB | P2 MB |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+        for n, r in rows3:
+            lo, p1, p2 = r.get("lower", {}), r.get("upper-1", {}), r.get("upper-2", {})
+            if any("error" in x for x in (lo, p1, p2)):
+                lines.append(f"| {n} | error: {lo.get('error', '')} {p1.get('error', '')} {p2.get('error', '')} |")
+                continue
+            A = lo["contact_area"]
+            lines.append(f"| {n} | {lo['n_elements']} | {lo['F'] / A:.4f} | {p1['F'] / A:.4f} | {p2['F'] / A:.4f} | "
+                         f"{p2['F'] / lo['F']:.4f} | {lo['certified'] and p2['certified']} | {lo['time_s']:.2f} | "
+                         f"{p2['time_s']:.2f} | {lo['peak_rss_mb']:.0f} | {p2['peak_rss_mb']:.0f} |")
     lines += ["", "Reading the table: every F_lower lies below Prandtl's load and every F_upper above it, as the two "
               "theorems require (F_c is exactly Prandtl's load for this block). Grading toward the punch edge, where "
               "the velocity field fans out, matters more than the element count: at 8192 triangles the uniform mesh "
@@ -145,7 +192,8 @@ def main(argv=None) -> None:
     out = args.out or (HERE / "quick" if args.quick else HERE)
     out.mkdir(parents=True, exist_ok=True)
     results = {"stamp": stamp(), "prandtl": PRANDTL, "runs": []}
-    for n, g, pat, what in (QUICK if args.quick else FULL):
+    runs = (QUICK if args.quick else FULL) + [(n, 1.0, "3d", w) for n, w in (QUICK_3D if args.quick else FULL_3D)]
+    for n, g, pat, what in runs:
         res = child(n, g, pat, what)
         results["runs"].append({"n": n, "grading": g, "pattern": pat, "what": what, "result": res})
         print(json.dumps(results["runs"][-1]), flush=True)

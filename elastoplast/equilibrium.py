@@ -370,7 +370,7 @@ class StaticCertificate:
     * ``symmetry_traction``: ``max |t_j| / s``, j not fixed, on facets with fixed components;
     * ``contact_normal``: ``max |t_d - lam| / s`` and ``contact_tangential``: ``max |t_j| / s``
       (j != d, not fixed) on Γ0 facets;
-    * ``force_balance``: ``|int_Γ0 lam - F| / F``;
+    * ``force_balance``: ``|int_Γ0 lam - F| / F`` with F the problem's load ``disc.force``;
     * ``contact_sign``: ``max(-lam, 0) / s``;
     * ``yield_excess``: ``max(sqrt(3/2)|dev tau| - sigma_y - eta, 0) / sigma_y`` at every
       element vertex;
@@ -442,7 +442,7 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
     tau = np.asarray(field.tau, dtype=float)
     eta = np.asarray(field.eta, dtype=float)
     lam = np.asarray(field.lam, dtype=float)
-    F = float(disc.force if field.force is None else field.force)
+    F = float(disc.force)  # the problem's load, not the one the field claims
     if not np.array_equal(np.asarray(field.contact_facets), topo.contact_facets):
         raise InputError("field.contact_facets", "do not match the contact facets of the problem")
 
@@ -516,8 +516,8 @@ class LowerBoundOptions:
 
 #: 3D meshes from this many elements use Clarabel's faer factorisation, smaller ones and
 #: 2D QDLDL. Measured (benchmarks/bounds/lower.md, quarter sphere, whole lower bound, 2
-#: cores): 162 tetrahedra QDLDL 0.4 s / faer 1.5 s; 288: 2.4 / 4.3; 600: 10.0 / 11.0;
-#: 1080: about 125 / 34.
+#: cores, one run): 162 tetrahedra QDLDL 0.8 s / faer 3.1 s; 288: 3.5 / 6.7; 600: 22.0 / 19.4;
+#: 1080: 137.2 / 44.7.
 FAER_FROM_ELEMENTS_3D = 600
 
 
@@ -967,7 +967,7 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     scale = min(1.0, m.yield_stress / vm.max(initial=0.0)) if vm.max(initial=0.0) > 0 else 1.0
     field = replace(field, tau=field.tau * scale, lam=field.lam * scale, force=F * scale)
     timings["repair"] = time.perf_counter() - t1
-    cert = certify_static(disc, field, options.certify_tol)
+    cert = certify_static(disc.with_force(field.force), field, options.certify_tol)
     timings["total"] = time.perf_counter() - t0
     msg = f"Clarabel: {raw}; repair residual {resid:.1e}, yield scaling 1 - {1 - scale:.1e}"
     if not cert.passed:

@@ -9,12 +9,15 @@ The data flows mesh -> discretisation -> solver -> certificate -> output::
     print(sol.U, sol.kkt.worst)
 """
 
+from .bounds import (Bounds, UpperBound, choose_delta, combine, energy_bounds, hencky_energy_density, penetration_bound,
+                     u_bracket, upper_bound)
 from .certificate import KKTResiduals, certify
 from .conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
 from .discretize import Discretization, discretize
 from .equilibrium import (LowerBound, LowerBoundOptions, StaticCertificate, StaticField, certify_static, dual_energy,
                           solve_lower_bound, static_limit_load)
 from .errors import InputError
+from .limit import KinematicBound, LimitBracket, LimitOptions, kinematic_limit_load, limit_load
 from .material import Material, return_mapping, von_mises
 from .mesh import Mesh, read_mesh, structured_mesh
 from .problem import Boundary, Obstacle, Problem, load_problem, make_material, problem_from_dict
@@ -37,4 +40,6 @@ __all__ = [
     "solve_uzawa", "structured_mesh", "summary", "von_mises",
     "LowerBound", "LowerBoundOptions", "StaticCertificate", "StaticField", "certify_static", "dual_energy",
     "solve_lower_bound", "static_limit_load",
+    "Bounds", "UpperBound", "choose_delta", "combine", "energy_bounds", "hencky_energy_density", "penetration_bound",
+    "u_bracket", "upper_bound", "KinematicBound", "LimitBracket", "LimitOptions", "kinematic_limit_load", "limit_load",
 ]

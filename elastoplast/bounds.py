@@ -1,4 +1,4 @@
-"""Guaranteed bounds on the continuous problem: the upper bound and the energy bracket (MATH.md section 9).
+"""Guaranteed bounds on the continuous problem: the upper bound and the energy bracket (docs/bounds.md).
 
 Upper bound. Any ``(v, V)`` in the continuum set K (``v`` in H1 with its Dirichlet
 conditions, ``v_d + psi - V >= 0`` on all of Γ0) gives ``Pi* <= Pi(v, V) = ∫ W(ε(v)) -
@@ -12,7 +12,7 @@ is exact element by element. Its non-penetration, though, holds at the nodes onl
 :func:`penetration_bound` bounds the gap from below on every contact facet, and
 ``V`` is lowered by the largest penetration, which makes ``(v, V)`` admissible.
 
-Facet rule (MATH.md section 9). On a contact facet ``g = I_h g + (psi - I_h psi)``;
+Facet rule (docs/bounds.md). On a contact facet ``g = I_h g + (psi - I_h psi)``;
 ``I_h g`` is at least the smallest nodal gap (round-off may leave that slightly
 negative: it is kept), and if ``Hess psi <= k I`` on the facet then
 ``I_h psi - psi <= k r²/2`` with r the radius of the facet's smallest enclosing
@@ -262,7 +262,7 @@ def upper_bound(disc: Discretization, candidate, correction: str = "best") -> Up
     ``max(0, p_i - s)`` (:func:`node_lifts`; costs about ``Σ λ_i max(0, p_i - s)``
     to first order, much less than ``F max p`` when the largest penetrations sit
     where the contact force is small, as at the edge of a contact zone on a graded
-    mesh). ``correction``: ``"shift"`` (s = max p, MATH.md section 9's rule),
+    mesh). ``correction``: ``"shift"`` (s = max p, docs/bounds.md's rule),
     ``"lift"`` (s = 0) or ``"best"`` (the smallest Pi over s in 0, the
     quantiles of the lifts and max p). Whatever s, Pi is evaluated exactly at the
     corrected ``(v, V)``, whose gap bounds are recomputed (any round-off

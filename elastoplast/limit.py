@@ -1,4 +1,4 @@
-"""Limit load with perfect plasticity (H = 0): the kinematic upper bound (MATH.md section 10).
+"""Limit load with perfect plasticity (H = 0): the kinematic upper bound (docs/bounds.md).
 
 Upper bound theorem. For a unit velocity of the rigid body (V = 1) and any
 velocity field v with v = 0 where displacements are fixed, ``v_d >= 1`` on the
@@ -50,6 +50,7 @@ import scipy.sparse.linalg as spla
 from .discretize import Discretization, _element_geometry, strain_operator
 from .equilibrium import LimitLowerBound, LowerBoundOptions, static_limit_load
 from .errors import InputError
+from .options import SolverOptions, option
 from .material import identity_vector
 from .mesh import Mesh
 
@@ -57,19 +58,23 @@ SQRT_2_3 = np.sqrt(2.0 / 3.0)
 
 
 @dataclass(frozen=True)
-class LimitOptions:
-    """``order``: velocity degree, 1 or 2 (default: 2, which does not lock in 3D
+class LimitOptions(SolverOptions):
+    """Settings of the kinematic program (declared and checked like every
+    solver's options, :mod:`elastoplast.options`).
+
+    ``order``: velocity degree, 1 or 2 (default: 2, which does not lock in 3D
     and, measured on the Prandtl punch, gives tighter bounds in 2D as well; see
-    benchmarks/bounds/limit.md). ``tol``: Clarabel's gap and feasibility
+    benchmarks/bounds/limit.md). ``ip_tol``: Clarabel's gap and feasibility
     tolerance. ``trace_tol``: the largest ``max|tr ε| / max|ε|`` accepted after
     the projection for the bound to count as certified."""
 
-    order: int = 2
-    tol: float = 1e-9
-    max_iter: int = 400
-    verbose: bool = False
-    time_limit: float = float("inf")
-    trace_tol: float = 1e-10
+    order: int = option(2, int, "velocity degree (1: P1, 2: P2)", lo=1, hi=2)
+    max_iter: int = option(400, int, "interior-point iteration limit", lo=1, hi=10_000)
+    ip_tol: float = option(1e-9, float, "Clarabel's gap and feasibility tolerance", lo=1e-14, hi=1e-3)
+    verbose: bool = option(False, bool, "Clarabel's own iteration log (on stdout)", persist=False)
+    linear_solver: str = option("qdldl", str, "Clarabel's KKT factorisation", choices=("qdldl", "faer"))
+    trace_tol: float = option(1e-10, float, "largest relative trace residual of a certified bound", lo=1e-16,
+                              hi=1e-4)
 
 
 # ----------------------------------------------------------------------------
@@ -348,7 +353,7 @@ def _check_perfectly_plastic(disc: Discretization) -> None:
 
 
 def obstacle_note(disc: Discretization) -> str:
-    """MATH.md section 10: for a curved obstacle the model's collapse load is not physical."""
+    """docs/bounds.md: for a curved obstacle the model's collapse load is not physical."""
     if disc.problem.obstacle.shape == "flat":
         return ""
     return (f"the obstacle is a {disc.problem.obstacle.shape}: psi drops out of the limit analysis, which "
@@ -383,7 +388,7 @@ def kinematic_limit_load(disc: Discretization, options: LimitOptions = LimitOpti
     length = float(disc.volumes.mean() ** (1.0 / disc.dim))
     P, q, A, b, cones = kinematic_program(space, length)
     # QDLDL: on a 3D P2 quarter model (864 tetrahedra) faer took 55 s against 11 s
-    settings = clarabel_settings(options, "qdldl")
+    settings = clarabel_settings(options, options.linear_solver)
     res = clarabel.DefaultSolver(P, q, A, b, cones, settings).solve()
     raw = str(res.status).split(".")[-1]
     x = np.asarray(res.x)

@@ -1,4 +1,4 @@
-"""Side study: the limit-load bracket F_lower <= F_c <= F_upper on Prandtl's punch (MATH.md section 10).
+"""Side study: the limit-load bracket F_lower <= F_c <= F_upper on Prandtl's punch (docs/bounds.md).
 
     python benchmarks/bounds/limit.py [--quick] [--out DIR]
 

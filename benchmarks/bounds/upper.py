@@ -1,4 +1,4 @@
-"""Side study: the certified energy bracket -J <= Pi* <= Pi and the U bracket (MATH.md section 9).
+"""Side study: the certified energy bracket -J <= Pi* <= Pi and the U bracket (docs/bounds.md).
 
     python benchmarks/bounds/upper.py [--quick] [--out DIR]
 
@@ -146,7 +146,7 @@ def report(results: dict) -> str:
                   "bracket is certified and its local terms sum to the gap to round-off.",
                   "- The non-penetration correction (upper - value_D) is a quarter to a third of the gap here: u_h "
                   "touches the cylinder at the nodes and dips into it by up to k h^2/8 between them. The mixed "
-                  "shift/lift correction (`best`) beats the shift of MATH.md section 9 a little; solving once more "
+                  "shift/lift correction (`best`) beats the shift of docs/bounds.md a little; solving once more "
                   "with psi lowered by the facet allowance (`conservative`) beats both. Lifting nodes alone is "
                   "costly: a displaced node strains its elements at second order with the stiffness E.",
                   "- The U bracket is about 2 sqrt(2 gap U') wide, as choose_delta predicts; four times a larger or "

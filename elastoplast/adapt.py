@@ -32,7 +32,8 @@ from .errors import InputError
 from .mesh import Mesh
 from .options import SolverOptions, option
 from .problem import Problem
-from .refinement import BisectionState, dorfler_mark, refine
+from .bounds import element_indicators
+from .refinement import dorfler_mark, refine
 from .solution import Solution
 
 
@@ -102,21 +103,6 @@ class AdaptResult:
     @property
     def final(self) -> Step:
         return self.steps[-1]
-
-
-def element_indicators(disc: Discretization, bounds) -> np.ndarray:
-    """The local gap of each element plus the gap of the contact facets it owns
-    (clipped at 0: the terms are ≥ 0 for an exactly admissible field, round-off
-    aside)."""
-    from .equilibrium import facet_topology
-
-    topo = facet_topology(disc.mesh, disc.problem.boundary)
-    eta = np.maximum(np.asarray(bounds.element_gap, dtype=float), 0.0)
-    owners = topo.boundary_elements[topo.contact]
-    if owners.size != np.asarray(bounds.facet_gap).size:
-        raise RuntimeError("the bounds' contact facets do not match the mesh's")  # pragma: no cover
-    np.add.at(eta, owners, np.maximum(np.asarray(bounds.facet_gap, dtype=float), 0.0))
-    return eta
 
 
 def bound_mesh(problem: Problem, options: AdaptOptions, *, bracket: bool, step: int = 0,
@@ -214,5 +200,107 @@ def fitted_rate(steps: tuple[Step, ...] | list[Step]) -> float:
     return float(-np.polyfit(np.log(n[ok]), np.log(g[ok]), 1)[0])
 
 
-__all__ = ["AdaptOptions", "AdaptResult", "BisectionState", "Step", "adapt", "element_indicators", "fitted_rate",
+__all__ = ["AdaptOptions", "AdaptResult", "Step", "adapt", "bound_mesh", "fitted_rate", "run_adapt_command",
            "uniform"]
+
+
+# ----------------------------------------------------------------------------
+# the command: run, compare with uniform refinement, write everything
+# ----------------------------------------------------------------------------
+
+
+def write_table(path, adaptive: AdaptResult, uniform_run: AdaptResult | None) -> str:
+    """The steps as a Markdown table (adaptive, then uniform), with the fitted rates."""
+    head = "| run | step | elements | lower | upper | relative gap | U lower | U upper | s | certified |"
+    lines = [head, "|" + "---|" * 10]
+    for name, run in (("adaptive", adaptive), ("uniform", uniform_run)):
+        if run is None:
+            continue
+        for s in run.steps:
+            lines.append(f"| {name} | {s.step} | {s.n_elements} | {s.energy_lower:.10g} | {s.energy_upper:.10g} | "
+                         f"{s.gap_rel:.3e} | {s.U_lower:.6g} | {s.U_upper:.6g} | {s.seconds:.1f} | "
+                         f"{'yes' if s.certified else 'no'} |")
+    lines += ["", f"Stopped: {adaptive.reason}.", "",
+              f"Fitted rate of the relative gap in the number of elements (gap ~ N^-p): adaptive p = "
+              f"{fitted_rate(adaptive.steps):.3f}"
+              + ("" if uniform_run is None else f", uniform p = {fitted_rate(uniform_run.steps):.3f}") + "."]
+    text = "\n".join(lines) + "\n"
+    from pathlib import Path
+
+    Path(path).write_text(text)
+    return text
+
+
+def plot_gaps(path, adaptive: AdaptResult, uniform_run: AdaptResult | None, title: str = "") -> None:
+    """The relative gap against the number of elements, adaptive and uniform (log-log)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.0, 4.2), layout="constrained")
+    ax = fig.add_subplot()
+    for name, run, style in (("adaptive", adaptive, "o-"), ("uniform", uniform_run, "s--")):
+        if run is None:
+            continue
+        n = [s.n_elements for s in run.steps]
+        g = [s.gap_rel for s in run.steps]
+        ax.loglog(n, g, style, label=f"{name} (p = {fitted_rate(run.steps):.2f})")
+    ax.set_xlabel("elements")
+    ax.set_ylabel("relative energy gap (upper − lower) / |upper|")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.savefig(path, dpi=120)
+
+
+def run_adapt_command(problem: Problem, options: AdaptOptions, out_dir) -> bool:
+    """``elastoplast adapt``: the adaptive run (one line per step on stdout, a
+    progress bar on stderr), the uniform comparison up to the adaptive run's
+    final size, and the files: ``adapt.md``/``adapt.json`` (the table),
+    ``gap.png``, ``meshes/mesh_NNN.msh`` (every adapted mesh, gmsh format with the
+    facet groups), and ``solution.vtu``/``summary.json`` of the final mesh with its
+    bounds and local gaps. Returns whether the final bounds are certified and
+    reach ``rtol``."""
+    import sys
+
+    from tqdm.auto import tqdm
+
+    from .bounds import gap_fields
+    from .mesh import write_mesh
+    from .output import json_text, staged_output, write_files
+    from .provenance import stamp
+
+    with staged_output(out_dir, "--out") as tmp:
+        bar = tqdm(total=options.max_iter, desc="adapt", unit="mesh", disable=not options.progress, file=sys.stderr,
+                   leave=False)
+
+        def report(step: Step) -> None:
+            bar.update(1)
+            bar.set_postfix(gap=f"{step.gap_rel:.2e}", elements=step.n_elements)
+            tqdm.write(step.line(), file=sys.stdout)
+
+        run = adapt(problem, options, report=report)
+        bar.close()
+        uni = None
+        if options.compare_uniform:
+            print("uniform refinement, for comparison:", file=sys.stdout)
+            uni = uniform(problem, options, max_elements=max(run.final.n_elements, problem.mesh.n_elements) * 2 ** problem.dim,
+                          report=lambda s: tqdm.write(s.line(), file=sys.stdout))
+        (tmp / "meshes").mkdir()
+        for k, mesh in enumerate(run.meshes):
+            write_mesh(tmp / "meshes" / f"mesh_{k:03d}.msh", mesh)
+        write_table(tmp / "adapt.md", run, uni)
+        (tmp / "adapt.json").write_text(json_text({
+            "reason": run.reason, "options": options.persistent(),
+            "adaptive": [s.as_dict() for s in run.steps], "adaptive_rate": fitted_rate(run.steps),
+            "uniform": None if uni is None else [s.as_dict() for s in uni.steps],
+            "uniform_rate": None if uni is None else fitted_rate(uni.steps), "provenance": stamp()}))
+        plot_gaps(tmp / "gap.png", run, uni, title=f"certified gap, {problem.dim}D")
+        b = run.bounds
+        final = run.final
+        write_files(tmp, run.disc, run.solution,
+                    extra={**b.as_dict(), "U_lower": final.U_lower, "U_upper": final.U_upper,
+                           "adapt_steps": len(run.steps), "adapt_reason": run.reason},
+                    **gap_fields(run.disc, b))
+    print(f"{run.reason}: {final.n_elements:,} elements, relative gap {final.gap_rel:.3e}"
+          + ("" if math.isnan(final.U_lower) else f", U in [{final.U_lower:.6g}, {final.U_upper:.6g}]")
+          + f" -> {out_dir}")
+    return bool(final.certified and final.gap_rel <= options.rtol)

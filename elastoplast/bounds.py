@@ -418,23 +418,27 @@ def conservative_discretization(disc: Discretization) -> Discretization:
     return replace(disc, psi=disc.psi - allowance[disc.contact_nodes])
 
 
-def energy_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
-                  lower_options=None, **options) -> Bounds:
-    """``-J <= Pi* <= Pi`` on ``disc``: the upper bound of ``solution`` (solved by
-    ``method`` when not given) and, with ``conservative``, of the solution of
-    :func:`conservative_discretization` too (the smaller Pi counts: both are
-    bounds); the lower bound of :func:`elastoplast.equilibrium.solve_lower_bound`."""
-    from .equilibrium import LowerBoundOptions, solve_lower_bound
+def best_upper_bound(disc: Discretization, solution, method: str = "conic", conservative: bool = True,
+                     **options) -> UpperBound:
+    """The upper bound of ``solution`` and, with ``conservative``, of the solution of
+    :func:`conservative_discretization` (solved by ``method``): the smaller Pi counts,
+    both being bounds."""
     from .solvers import solve
 
-    sol = solve(disc, method, **options) if solution is None else solution
-    upper = upper_bound(disc, sol)
+    upper = upper_bound(disc, solution)
     if conservative:
         other = upper_bound(disc, solve(conservative_discretization(disc), method, **options))
         if other.Pi < upper.Pi and (other.certified or not upper.certified):
             upper = replace(other, message=f"{other.message}; from the solution with the conservative obstacle")
-    lower = solve_lower_bound(disc, lower_options or LowerBoundOptions())
-    return combine(upper, lower)
+    return upper
+
+
+def energy_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
+                  lower_options=None, **options) -> Bounds:
+    """``-J <= Pi* <= Pi`` on ``disc``: :func:`best_upper_bound` of ``solution``
+    (solved by ``method`` when not given) and the lower bound of
+    :func:`elastoplast.equilibrium.solve_lower_bound`."""
+    return certified_bounds(disc, solution, method, conservative, lower_options, bracket=False, **options).bounds
 
 
 def bounds_at(disc: Discretization, **kwargs) -> Callable[[float], tuple[float, float]]:
@@ -499,3 +503,107 @@ def displacement_slope(disc: Discretization, method: str = "conic", step: float 
     F = disc.force
     U = [solve(disc.with_force(F * (1 + s)), method, **options).U for s in (-step, step)]
     return float((U[1] - U[0]) / (2.0 * step * F))
+
+
+# ----------------------------------------------------------------------------
+# everything the bounds command reports
+# ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BoundsReport:
+    """The energy bracket of one problem (:class:`Bounds`), the U bracket from the
+    lower bounds at ``F -/+ delta`` (NaN when not computed), and the two sides it
+    was built from, for their messages and local terms."""
+
+    bounds: Bounds
+    upper: UpperBound = field(repr=False)
+    lower: object = field(repr=False)
+    U_lower: float = float("nan")
+    U_upper: float = float("nan")
+    delta: float = float("nan")
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def certified(self) -> bool:
+        """The energy bracket is a proof; with a U bracket, its two extra lower bounds are too."""
+        return self.bounds.bounds_certified and self.bracket_certified
+
+    bracket_certified: bool = True
+
+    def as_dict(self) -> dict:
+        """The keys ``summary.json`` gains (docs/bounds.md)."""
+        return {
+            **self.bounds.as_dict(),
+            "bounds_certified": self.certified,
+            "U_lower": self.U_lower,
+            "U_upper": self.U_upper,
+            "U_bracket_delta": self.delta,
+            "upper_bound": {"penetration": self.upper.penetration, "shift": self.upper.shift, "lift": self.upper.lift,
+                            "certified": self.upper.certified, "message": self.upper.message},
+            "lower_bound": {"certified": self.lower.certified, "status": self.lower.status.value,
+                            "message": self.lower.message, "certificate_worst": self.lower.certificate.worst,
+                            "iterations": self.lower.iterations},
+            "bounds_timings": self.timings,
+        }
+
+
+def certified_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
+                     lower_options=None, *, bracket: bool = True, **options) -> BoundsReport:
+    """The energy bracket of ``disc`` and, with ``bracket``, the U bracket.
+
+    U bracket (:func:`u_bracket`): only the lower bounds are needed at ``F -/+
+    delta`` (``U >= (lo(F - delta) - hi(F)) / delta``, ``U <= (hi(F) - lo(F + delta))
+    / delta``), so two more equilibrium-element programs and no P1 solve; delta is
+    :func:`choose_delta` with the secant ``U / F`` for ``dU/dF`` (delta only sets
+    how tight the bracket is, never whether it holds).
+    """
+    import time
+
+    from .equilibrium import LowerBoundOptions, solve_lower_bound
+    from .solvers import solve
+
+    lower_options = lower_options or LowerBoundOptions()
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    sol = solve(disc, method, **options) if solution is None else solution
+    upper = best_upper_bound(disc, sol, method, conservative, **options)
+    t1 = time.perf_counter()
+    lower = solve_lower_bound(disc, lower_options)
+    t2 = time.perf_counter()
+    timings.update(upper=t1 - t0, lower=t2 - t1)
+    b = combine(upper, lower)
+    if not bracket:
+        return BoundsReport(bounds=b, upper=upper, lower=lower, timings=timings)
+    F = disc.force
+    delta = choose_delta(F, b.energy_gap, sol.U / F if sol.U > 0 else 0.0)
+    side = {F - delta: solve_lower_bound(disc.with_force(F - delta), lower_options),
+            F + delta: solve_lower_bound(disc.with_force(F + delta), lower_options)}
+    timings["bracket"] = time.perf_counter() - t2
+
+    def at(force: float) -> tuple[float, float]:
+        return (b.energy_lower, b.energy_upper) if force == F else (side[force].lower, float("nan"))
+
+    U_lo, U_hi = u_bracket(disc, delta, at)
+    return BoundsReport(bounds=b, upper=upper, lower=lower, U_lower=U_lo, U_upper=U_hi, delta=delta, timings=timings,
+                        bracket_certified=all(lb.certified for lb in side.values()))
+
+
+def element_indicators(disc: Discretization, bounds: Bounds) -> np.ndarray:
+    """The local gap of each element plus the gap of the contact facets it owns
+    (clipped at 0: the terms are >= 0 for an exactly admissible field, round-off
+    aside): the indicator adaptive refinement marks on."""
+    from .equilibrium import facet_topology
+
+    topo = facet_topology(disc.mesh, disc.problem.boundary)
+    eta = np.maximum(np.asarray(bounds.element_gap, dtype=float), 0.0)
+    owners = topo.boundary_elements[topo.contact]
+    np.add.at(eta, owners, np.maximum(np.asarray(bounds.facet_gap, dtype=float), 0.0))
+    return eta
+
+
+def gap_fields(disc: Discretization, bounds: Bounds) -> dict:
+    """What ``solution.vtu`` gains (:func:`elastoplast.output.write_vtu` keywords):
+    the local gap per element and per contact facet, and the marking indicator."""
+    return {"cell_data": {"gap": bounds.element_gap, "gap_indicator": element_indicators(disc, bounds)},
+            "facets": (bounds.contact_facets, {"gap": bounds.facet_gap})}

@@ -56,6 +56,33 @@ def build_parser() -> argparse.ArgumentParser:
     _add_solver_arguments(p)
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
+    p = sub.add_parser("bounds", help="certified bounds on the continuous problem: energy, stress error and U")
+    p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
+    p.add_argument("--method", help="solver of the P1 solution (default: the file's [solver] method, else conic)")
+    p.add_argument("--out", default="bounds", help="output folder (default: bounds)")
+    _add_solver_arguments(p)
+    p.add_argument("--no-bracket", action="store_true", help="no U bracket (it costs two more lower-bound programs)")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+    p = sub.add_parser("limit", help="bracket the limit load of perfect plasticity (hardening = 0)")
+    p.add_argument("problem", help="problem TOML file with hardening = 0")
+    p.add_argument("--out", default="limit", help="output folder (default: limit)")
+    p.add_argument("--order", type=int, help="degree of the kinematic velocity field, 1 or 2 (default: 2)")
+    p.add_argument("--time-limit", type=float, help="Clarabel's wall-clock limit per program, seconds")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+    p = sub.add_parser("adapt", help="refine where the certified gap is until the relative gap is at most --rtol")
+    p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
+    p.add_argument("--rtol", type=float, help="target relative energy gap (default: 1e-3)")
+    p.add_argument("--theta", type=float, help="Dörfler parameter (default: 0.5)")
+    p.add_argument("--max-elements", type=int, help="element budget (default: 2,000,000)")
+    p.add_argument("--time-limit", type=float, help="time budget in seconds")
+    p.add_argument("--method", help="solver of the P1 solutions (default: newton)")
+    p.add_argument("--bracket", choices=["every", "final", "never"], help="U bracket at every step (default), the last, or none")
+    p.add_argument("--no-uniform", action="store_true", help="skip the uniform-refinement comparison")
+    p.add_argument("--out", default="adapt", help="output folder (default: adapt)")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
     p = sub.add_parser("campaign", help="run a sweep of problems on Dask into a resumable store of reference solutions")
     p.add_argument("campaign", help="campaign TOML file: a base problem and [sweep] axes")
     p.add_argument("--out", required=True, help="store directory (created; re-running skips the cases it holds)")
@@ -118,29 +145,47 @@ def _flag_names(exc: InputError) -> InputError:
     return InputError(flags.get(exc.field, f"--option {exc.field}"), exc.message)
 
 
-def _solve(args: argparse.Namespace) -> int:
-    from .discretize import discretize
-    from .output import check_output_dir, write_results
-    from .problem import problem_from_dict, read_toml
-    from .solvers import get_method, method_options, solver_settings, solve
+def _setup(args: argparse.Namespace, method_flag: bool = True):
+    """What every command on one problem starts with: the problem file (or the
+    built-in default), its ``[solver]`` table and the command-line options, all
+    checked, and ``--out`` checked, before any work. Returns ``(path, data,
+    method, options)``."""
+    from .output import check_output_dir
+    from .problem import read_toml
+    from .solvers import get_method, method_options, solver_settings
 
     path = Path(args.problem) if args.problem else default_problem_path()
     data = read_toml(path)
     method, options = solver_settings(data.get("solver", {}))  # the file's [solver] table, checked
-    if args.method is not None:
+    if method_flag and args.method is not None:
         method = get_method(args.method, "--method").name
-    given = command_line_options(args)
+    given = command_line_options(args) if method_flag else {}
     try:
-        opts = method_options(method, given)  # the flags alone, named as flags
+        method_options(method, given)  # the flags alone, named as flags
     except InputError as exc:
         raise _flag_names(exc) from None
     opts = method_options(method, {**options, **given, "progress": not args.quiet}, prefix="solver.")
-    check_output_dir(args.out, "--out")  # before any work
-    problem = problem_from_dict(data, base_dir=path.parent)
-    disc = discretize(problem)
-    if not args.quiet:
+    check_output_dir(args.out, "--out")
+    return path, data, method, opts
+
+
+def _discretize(path: Path, data: dict, quiet: bool, what: str):
+    from .discretize import discretize
+    from .problem import problem_from_dict
+
+    disc = discretize(problem_from_dict(data, base_dir=path.parent))
+    if not quiet:
         print(f"{path.name}: {disc.dim}D, {disc.n_elements} elements, {disc.mesh.n_nodes} nodes, "
-              f"{disc.n_contact} contact nodes; method {method}", file=sys.stderr)
+              f"{disc.n_contact} contact nodes; {what}", file=sys.stderr)
+    return disc
+
+
+def _solve(args: argparse.Namespace) -> int:
+    from .output import write_results
+    from .solvers import solve
+
+    path, data, method, opts = _setup(args)
+    disc = _discretize(path, data, args.quiet, f"method {method}")
     sol = solve(disc, method, opts)
     data = write_results(args.out, disc, sol)
     print(f"{sol.status.value}: U = {sol.U:.6g}, max contact pressure = {data['max_contact_pressure']:.6g}, "
@@ -151,6 +196,84 @@ def _solve(args: argparse.Namespace) -> int:
         print(f"not converged: {sol.message}", file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return EXIT_OK
+
+
+def _bounds(args: argparse.Namespace) -> int:
+    from .bounds import certified_bounds, gap_fields
+    from .equilibrium import LowerBoundOptions, check_lower_bound_size
+    from .output import write_results
+    from .solution import Status
+    from .solvers import check_solvable, solve
+
+    path, data, method, opts = _setup(args)
+    disc = _discretize(path, data, args.quiet, f"P1 solution by {method}, then the bounds")
+    check_lower_bound_size(disc, LowerBoundOptions())  # before the solve
+    check_solvable(disc, method, opts)
+    sol = solve(disc, method, opts)
+    if sol.status is Status.INFEASIBLE:
+        raise InputError("load.force", f"{disc.force:g} is above the limit load ({sol.message}): the problem has "
+                                       "no solution to bound; 'elastoplast limit' brackets the limit load")
+    if not sol.converged:
+        print(f"warning: the P1 solution did not converge ({sol.message}); its upper bound stays valid, only looser",
+              file=sys.stderr)
+    report = certified_bounds(disc, sol, method, bracket=not args.no_bracket, options=opts)
+    b = report.bounds
+    write_results(args.out, disc, sol, extra=report.as_dict(), **gap_fields(disc, b))
+    bracket = "" if args.no_bracket else f"; U in [{report.U_lower:.6g}, {report.U_upper:.6g}]"
+    print(f"energy in [{b.energy_lower:.8g}, {b.energy_upper:.8g}] (relative gap {b.energy_gap_rel:.2e}){bracket}"
+          f" (discrete U = {sol.U:.6g}); stress error <= {b.stress_error_bound:.4g} "
+          f"({100 * b.stress_error_bound_rel:.2f}%); {'certified' if report.certified else 'NOT certified'}"
+          f" -> {Path(args.out) / 'summary.json'}")
+    if not report.certified:
+        print(f"not certified: upper: {report.upper.message}; lower: {report.lower.message}", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
+def _limit(args: argparse.Namespace) -> int:
+    from .limit import LimitOptions, limit_load
+    from .output import json_text, staged_output
+
+    path, data, _, _ = _setup(args, method_flag=False)
+    warnings.filterwarnings("ignore", message=r".*hardening = 0 is perfect plasticity")  # what 'limit' is for
+    given = {k: v for k, v in (("order", args.order), ("time_limit", args.time_limit)) if v is not None}
+    try:
+        options = LimitOptions.build(given)
+    except InputError as exc:
+        raise InputError(f"--{exc.field.replace('_', '-')}", exc.message) from None
+    disc = _discretize(path, data, args.quiet, "limit load bracket (H = 0)")
+    bracket = limit_load(disc, options)
+    with staged_output(args.out, "--out") as tmp:
+        from .provenance import stamp
+
+        (tmp / "summary.json").write_text(json_text({**bracket.as_dict(), "provenance": stamp()}))
+    print(f"{bracket.F_lower:.6g} <= F_c <= {bracket.F_upper:.6g} (ratio {bracket.ratio:.4f}); "
+          f"{'certified' if bracket.certified else 'NOT certified'} -> {Path(args.out) / 'summary.json'}")
+    if bracket.message:
+        print(bracket.message, file=sys.stderr)
+    return EXIT_OK if bracket.certified else EXIT_NOT_CONVERGED
+
+
+def _adapt(args: argparse.Namespace) -> int:
+    from .adapt import AdaptOptions, run_adapt_command
+
+    from .solvers import get_method
+
+    path, data, method, _ = _setup(args, method_flag=False)
+    if args.method is not None:
+        method = get_method(args.method, "--method").name
+    elif "method" not in data.get("solver", {}):
+        method = AdaptOptions().method  # Newton: the fastest P1 solver (benchmarks/methods)
+    given = {k: v for k, v in (("rtol", args.rtol), ("theta", args.theta), ("max_elements", args.max_elements),
+                               ("time_limit", args.time_limit), ("bracket", args.bracket)) if v is not None}
+    if args.no_uniform:
+        given["compare_uniform"] = False
+    try:
+        options = AdaptOptions.build({**given, "method": method, "progress": not args.quiet})
+    except InputError as exc:
+        raise InputError(f"--{exc.field.replace('_', '-')}", exc.message) from None
+    disc = _discretize(path, data, args.quiet, f"adaptive refinement to rtol {options.rtol:g}")
+    return EXIT_OK if run_adapt_command(disc.problem, options, args.out) else EXIT_NOT_CONVERGED
 
 
 def _campaign(args: argparse.Namespace) -> int:
@@ -189,7 +312,8 @@ def _compare(args: argparse.Namespace) -> int:
     return EXIT_OK if report.summary["n_converged"] == report.summary["n_cases"] else EXIT_NOT_CONVERGED
 
 
-COMMANDS = {"solve": _solve, "campaign": _campaign, "compare": _compare}
+COMMANDS = {"solve": _solve, "bounds": _bounds, "limit": _limit, "adapt": _adapt, "campaign": _campaign,
+            "compare": _compare}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

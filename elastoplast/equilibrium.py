@@ -516,6 +516,8 @@ class LowerBoundOptions(SolverOptions):
     yield_margin: float = option(1e-8, float, "H = 0: relative margin below the yield stress", lo=0.0, hi=1e-2)
     psi_subdivisions: int = option(4, int, "expression obstacles: pieces per facet edge of the enclosure", lo=1,
                                    hi=64)
+    max_elements: int | None = option(None, int, "largest mesh accepted (none: LOWER_BOUND_MAX_ELEMENTS)", lo=1,
+                                      hi=100_000_000, none=True)
 
 
 #: 3D meshes from this many elements use Clarabel's faer factorisation, smaller ones and
@@ -825,7 +827,27 @@ class _Setup:
     grads: np.ndarray
 
 
+#: the equilibrium-element program's interior point factors a KKT matrix whose fill grows
+#: fast in 3D (about 24 unknowns per element coupled through every facet): measured
+#: (benchmarks/bounds/lower.md, faer) 19 s at 600 and 45 s at 1,080 tetrahedra, growing
+#: faster than n^1.4; 2D 53 s at 14,400 triangles. Beyond these sizes it cannot finish
+#: in reasonable time on a machine like this one (2 cores).
+LOWER_BOUND_MAX_ELEMENTS = {2: 100_000, 3: 8_000}
+
+
+def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions) -> None:
+    """Refuse a mesh the lower-bound program cannot finish (``options.max_elements``
+    or :data:`LOWER_BOUND_MAX_ELEMENTS`), naming the size."""
+    limit = options.max_elements or LOWER_BOUND_MAX_ELEMENTS[disc.dim]
+    if disc.n_elements > limit:
+        raise InputError("mesh", f"{disc.n_elements:,} elements: the equilibrium-element lower bound is limited to "
+                                 f"{limit:,} in {disc.dim}D (its interior point's cost grows fast, see "
+                                 "benchmarks/bounds); coarsen the mesh, let 'elastoplast adapt' place the elements, "
+                                 "or raise the limit with the lower bound's max_elements option")
+
+
 def _setup(disc: Discretization, options: LowerBoundOptions, force: float | None = None) -> _Setup:
+    check_lower_bound_size(disc, options)
     topo = facet_topology(disc.mesh, disc.problem.boundary)
     psi = psi_weights(disc, topo, options.psi_subdivisions)
     nd, units = nondimensionalize(disc if force is None else disc.with_force(force))

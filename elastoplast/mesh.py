@@ -442,3 +442,28 @@ def _check_lines_are_edges(mesh: Mesh, lines: np.ndarray, path: Path) -> None:
     if np.any(missing):
         raise InputError("mesh.file", f"{path}: {int(missing.sum())} line cell(s) are not edges of any tetrahedron "
                                       "(line elements are not solved)")
+
+
+def write_mesh(path: str | Path, mesh: Mesh) -> None:
+    """Write ``mesh`` as a gmsh 2.2 file that :func:`read_mesh` (and gmsh, and any
+    code reading gmsh physical groups) reads back: the simplices, and each facet
+    group as a block of facets tagged with its own physical group (a facet in
+    several groups is written once per group)."""
+    import meshio
+
+    d = mesh.dim
+    facet_type = _FACET_TYPES[d]
+    blocks = [(_BODY_TYPES[d], mesh.cells)]
+    tags = [np.full(mesh.n_elements, len(mesh.groups) + 1, dtype=np.int32)]
+    field_data = {"body": np.array([len(mesh.groups) + 1, d], dtype=np.int32)}
+    for i, (name, facets) in enumerate(sorted(mesh.groups.items()), start=1):
+        if len(facets) == 0:
+            continue
+        blocks.append((facet_type, np.asarray(facets)))
+        tags.append(np.full(len(facets), i, dtype=np.int32))
+        field_data[name] = np.array([i, d - 1], dtype=np.int32)
+    points = mesh.points if d == 3 else np.column_stack([mesh.points, np.zeros(mesh.n_nodes)])
+    out = meshio.Mesh(points, blocks, cell_data={"gmsh:physical": tags, "gmsh:geometrical": tags},
+                      field_data=field_data)
+    with contextlib.redirect_stdout(io.StringIO()):
+        meshio.write(Path(path), out, file_format="gmsh22", binary=False)

@@ -38,9 +38,18 @@ def mandel_to_tensor(sigma: np.ndarray) -> np.ndarray:
     return t
 
 
-def write_vtu(path: str | Path, disc: Discretization, sol: Solution) -> None:
+_VTK_FACET = {2: "line", 3: "triangle"}
+
+
+def write_vtu(path: str | Path, disc: Discretization, sol: Solution, cell_data: dict[str, np.ndarray] | None = None,
+              facets: tuple[np.ndarray, dict[str, np.ndarray]] | None = None) -> None:
     """Displacement, contact pressure/force (nodal); stress tensor, von Mises,
-    xi and the plastic flag (per element)."""
+    xi and the plastic flag (per element); ``cell_data``: more per-element arrays.
+
+    ``facets = (nodes (n_f, d), {name: values (n_f,)})`` adds a second block of
+    boundary facets (lines in 2D, triangles in 3D) carrying their own arrays;
+    every array is then defined on both blocks, NaN where it does not apply.
+    """
     import meshio
 
     mesh = disc.mesh
@@ -56,14 +65,26 @@ def write_vtu(path: str | Path, disc: Discretization, sol: Solution) -> None:
         "von_mises": von_mises(sol.sigma),
         "xi": sol.xi,
         "plastic": sol.plastic.astype(np.int32),
+        **(cell_data or {}),
     }
+    blocks = [(_VTK_CELL[d], mesh.cells)]
+    data = {k: [v] for k, v in cells.items()}
+    if facets is not None:
+        nodes, values = facets
+        blocks.append((_VTK_FACET[d], np.asarray(nodes)))
+        data = {}
+        for name in [*cells, *(k for k in values if k not in cells)]:
+            el = np.asarray(cells[name], dtype=float) if name in cells else np.full(mesh.n_elements, np.nan)
+            on_f = values.get(name)
+            f = np.asarray(on_f, dtype=float) if on_f is not None else np.full((len(nodes),) + el.shape[1:], np.nan)
+            data[name] = [el, f]
     meshio.write(
         Path(path),
         meshio.Mesh(
             points,
-            [(_VTK_CELL[d], mesh.cells)],
+            blocks,
             point_data={"displacement": disp, "contact_pressure": pressure, "contact_force": force},
-            cell_data={k: [v] for k, v in cells.items()},
+            cell_data=data,
         ),
     )
 
@@ -143,19 +164,22 @@ def staged_output(out_dir: str | Path, field: str = "out") -> Iterator[Path]:
         raise
 
 
-def write_results(out_dir: str | Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None) -> dict:
+def write_results(out_dir: str | Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None,
+                  **vtu: Any) -> dict:
     """Write ``solution.vtu``, ``summary.json`` and (for iterative methods)
     ``convergence.png`` into ``out_dir``, which then holds nothing else but the
-    marker (:func:`staged_output`); returns the summary."""
+    marker (:func:`staged_output`); returns the summary. ``vtu``: more data for
+    :func:`write_vtu` (``cell_data``, ``facets``)."""
     with staged_output(out_dir) as tmp:
-        return write_files(tmp, disc, sol, extra)
+        return write_files(tmp, disc, sol, extra, **vtu)
 
 
-def write_files(folder: Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None) -> dict:
+def write_files(folder: Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None,
+                **vtu: Any) -> dict:
     """The files of :func:`write_results`, written into an existing folder."""
     from .provenance import stamp
 
-    write_vtu(folder / "solution.vtu", disc, sol)
+    write_vtu(folder / "solution.vtu", disc, sol, **vtu)
     data = summary(disc, sol)
     if sol.history:
         data["history"] = sol.history

@@ -303,7 +303,8 @@ def make_material(E: float, nu: float, yield_stress: float, hardening: float, *,
             f"{prefix}.hardening = 0 is perfect plasticity: stresses are unique up to the limit load but "
             "displacements may not be, and a force above the limit load has no solution; it needs a mesh "
             "whose P1 elements do not lock (in 2D pattern = \"crossed\"; P1 tetrahedra lock: in 3D use "
-            "hardening > 0), and meshes that lock are refused by the solvers",
+            "hardening > 0), and meshes that lock are refused by the solvers; 'elastoplast limit' brackets "
+            "the limit load on any mesh",
             stacklevel=2,
         )
     return Material(float(E) + 0.0, float(nu) + 0.0, float(yield_stress) + 0.0, float(hardening) + 0.0)

@@ -109,8 +109,8 @@ def _axes(sweep: Any) -> dict[str, list]:
     for axis, values in axes.items():
         name = f"sweep.{axis}"
         head = axis.split(".")
-        if head[0] not in SECTIONS or len(head) < 2:
-            raise InputError(name, f"unknown key: an axis is 'method' or a dotted key in {sorted(SECTIONS)}")
+        if head[0] not in CASE_SECTIONS or len(head) < 2:
+            raise InputError(name, f"unknown key: an axis is 'method' or a dotted key in {sorted(CASE_SECTIONS)}")
         if head[0] == "solver" and len(head) != 2:
             raise InputError(name, "unknown key (a solver axis is 'method' or 'solver.<option>')")
         if not isinstance(values, list):
@@ -118,6 +118,29 @@ def _axes(sweep: Any) -> dict[str, list]:
         if not values:
             raise InputError(name, "is an empty list (the campaign would have no case)")
     return axes
+
+
+#: the sections of a case: a problem's, and ``[adapt]`` (an adaptive target, see :func:`adapt_settings`)
+CASE_SECTIONS = SECTIONS | {"adapt"}
+
+
+def adapt_settings(section: Mapping[str, Any] | None, method: str) -> dict[str, Any] | None:
+    """The adaptive target of a case from its ``[adapt]`` table (``rtol``, ``theta``,
+    ``max_elements``, ``time_limit``, ``bracket``, ...: the options of
+    :class:`~elastoplast.adapt.AdaptOptions`), checked; ``None`` without one. The case
+    then runs :func:`~elastoplast.adapt.adapt` with the case's method as the P1
+    solver, and stores the final mesh, its solution and its bounds."""
+    from .adapt import AdaptOptions
+
+    if section is None:
+        return None
+    if not isinstance(section, Mapping):
+        raise InputError("adapt", f"must be a table, got {section!r}")
+    if "method" in section:
+        raise InputError("adapt.method", "the P1 solver of an adaptive case is the case's method ([solver] or a "
+                                         "method axis)")
+    AdaptOptions.build({**section, "method": method}, prefix="adapt.")
+    return {k: section[k] for k in sorted(section)}
 
 
 def _set(data: dict, axis: str, value: Any) -> None:
@@ -151,9 +174,9 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
     base_dir = Path(base_dir)
     if not isinstance(data, Mapping):
         raise InputError("campaign", f"must be a table, got {data!r}")
-    unknown = sorted(set(data) - SECTIONS - {"campaign", "sweep"})
+    unknown = sorted(set(data) - CASE_SECTIONS - {"campaign", "sweep"})
     if unknown:
-        raise InputError(unknown[0], f"unknown section (allowed: {sorted(SECTIONS | {'campaign', 'sweep'})})")
+        raise InputError(unknown[0], f"unknown section (allowed: {sorted(CASE_SECTIONS | {'campaign', 'sweep'})})")
     head = data.get("campaign", {})
     if not isinstance(head, Mapping) or set(head) - {"name", "problem"}:
         raise InputError("campaign", f"allowed keys are 'name' and 'problem', got {head!r}")
@@ -165,7 +188,7 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
         if not path.is_file():
             raise InputError("campaign.problem", f"file not found: {path}")
         base, problem_dir = read_toml(path, field="campaign.problem"), path.parent
-    for section in SECTIONS & set(data):
+    for section in CASE_SECTIONS & set(data):
         if not isinstance(data[section], Mapping):
             raise InputError(section, f"must be a table, got {data[section]!r}")
         base[section] = {**base.get(section, {}), **copy.deepcopy(dict(data[section]))}
@@ -185,8 +208,9 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
                 _set(case_data, axis, value)
             try:
                 method, options = solver_settings(case_data.pop("solver", {}))
+                target = adapt_settings(case_data.pop("adapt", None), method)
                 problem = problem_from_dict(case_data, problem_dir)
-                inp = resolve(problem, method, options)
+                inp = resolve(problem, method, options, adapt=target)
                 mesh_key = content_hash({}, inp.arrays)
                 inp = ResolvedInput(spec=inp.spec, arrays=meshes.setdefault(mesh_key, dict(inp.arrays)))
                 problem_id = inp.problem_id
@@ -304,7 +328,10 @@ def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[
 
     worker = _worker_address()
     try:
-        disc = discretize(rebuild_problem(spec, arrays))
+        problem = rebuild_problem(spec, arrays)
+        if spec.get("adapt") is not None:
+            return {**adaptive_case(problem, spec), "worker": worker}
+        disc = discretize(problem)
         sol = solve(disc, spec["method"], **spec["options"])
         with tempfile.TemporaryDirectory(prefix="elastoplast-case-") as tmp:
             data = write_files(Path(tmp), disc, sol)
@@ -312,6 +339,37 @@ def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[
         return {"solution": sol, "summary": data, "vtu": vtu, "worker": worker}
     except Exception as exc:  # recorded in the store; the campaign goes on
         return {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(), "worker": worker}
+
+
+def adaptive_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
+    """Run a case with an adaptive target: :func:`~elastoplast.adapt.adapt` from the
+    case's mesh with its method, then the final mesh's solution, summary (with the
+    bounds and the U bracket) and VTU, the final mesh (``adapted.msh``) and the
+    table of steps (``adapt.json``). The stored status is ``converged`` when the
+    target was reached with certified bounds, else the budget that stopped it."""
+    import dataclasses
+
+    from .adapt import AdaptOptions, adapt
+    from .bounds import gap_fields
+    from .mesh import write_mesh
+    from .output import json_text, write_files
+    from .solution import Status
+
+    options = AdaptOptions.build({**spec["adapt"], "method": spec["method"]})
+    run = adapt(problem, options)
+    final, b = run.final, run.bounds
+    reached = final.certified and final.gap_rel <= options.rtol
+    status = Status.CONVERGED if reached else (Status.TIME_LIMIT if "time_limit" in run.reason else Status.MAX_ITERATIONS)
+    sol = dataclasses.replace(run.solution, status=status, message=f"adapt: {run.reason}; {run.solution.message}")
+    bounds = {**b.as_dict(), "U_lower": final.U_lower, "U_upper": final.U_upper, "final_elements": final.n_elements,
+              "adapt_steps": len(run.steps), "adapt_reason": run.reason}
+    with tempfile.TemporaryDirectory(prefix="elastoplast-case-") as tmp:
+        data = write_files(Path(tmp), run.disc, sol, extra=bounds, **gap_fields(run.disc, b))
+        vtu = (Path(tmp) / "solution.vtu").read_bytes()
+        write_mesh(Path(tmp) / "adapted.msh", run.disc.mesh)
+        files = {"adapted.msh": (Path(tmp) / "adapted.msh").read_bytes(),
+                 "adapt.json": json_text({"reason": run.reason, "steps": [s.as_dict() for s in run.steps]}).encode()}
+    return {"solution": sol, "summary": data, "vtu": vtu, "files": files, "bounds": bounds}
 
 
 #: a problem small enough to solve in milliseconds, to warm each worker up
@@ -604,7 +662,7 @@ def compare(store_dir: str | Path, method: str, *, options: Mapping[str, Any] | 
     where, params = "status = 'converged'", ()
     if reference_method is not None:
         where, params = where + " AND method = ?", (reference_method,)
-    refs = store.rows(where, params)
+    refs = [r for r in store.rows(where, params) if r.get("final_elements") is None]  # adaptive cases: own meshes
     if not refs:
         raise InputError("store", f"no converged reference case in {store.path}"
                          + (f" solved by {reference_method!r}" if reference_method else ""))

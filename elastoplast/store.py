@@ -76,6 +76,14 @@ _COLUMNS = [
     ("kkt_worst", "REAL"),
     *[(f"kkt_{k}", "REAL") for k in KKT_FIELDS],
     ("duality_gap", "REAL"),
+    # cases with an adaptive target: the final mesh's size and certified bounds
+    ("final_elements", "INTEGER"),
+    ("energy_lower", "REAL"),
+    ("energy_upper", "REAL"),
+    ("energy_gap_rel", "REAL"),
+    ("U_lower", "REAL"),
+    ("U_upper", "REAL"),
+    ("bounds_certified", "INTEGER"),
     ("iterations", "INTEGER"),
     ("time_total", "REAL"),
     ("timings", "TEXT"),
@@ -110,11 +118,15 @@ class ResolvedInput:
     @property
     def problem_id(self) -> str:
         """The hash without method and options: cases of one problem share it."""
-        return content_hash({k: v for k, v in self.spec.items() if k not in ("method", "options")}, self.arrays)
+        return content_hash({k: v for k, v in self.spec.items() if k not in ("method", "options", "adapt")},
+                            self.arrays)
 
 
-def resolve(problem: Problem, method: str, options: Mapping[str, Any]) -> ResolvedInput:
-    """The canonical form of ``(problem, method, options)``."""
+def resolve(problem: Problem, method: str, options: Mapping[str, Any],
+            adapt: Mapping[str, Any] | None = None) -> ResolvedInput:
+    """The canonical form of ``(problem, method, options)`` and, for a case with an
+    adaptive target, its ``adapt`` options (absent otherwise, so that the ids of
+    ordinary cases do not change)."""
     mesh = problem.mesh
     arrays = {"points": np.ascontiguousarray(mesh.points, dtype=np.float64),
               "cells": np.ascontiguousarray(mesh.cells, dtype=np.int64)}
@@ -132,6 +144,8 @@ def resolve(problem: Problem, method: str, options: Mapping[str, Any]) -> Resolv
         "obstacle": {"shape": problem.obstacle.shape, "dim": problem.obstacle.dim, "radius": problem.obstacle.radius,
                      "center": list(problem.obstacle.center), "expression": problem.obstacle.expression},
     }
+    if adapt is not None:
+        spec["adapt"] = {k: adapt[k] for k in sorted(adapt)}
     return ResolvedInput(spec=json.loads(json.dumps(spec)), arrays=arrays)
 
 
@@ -223,11 +237,13 @@ class CaseRecord:
 
 def case_record(inp: ResolvedInput, params: Mapping[str, Any], campaign: str, *, solution: Solution | None = None,
                 summary: Mapping[str, Any] | None = None, vtu: bytes | None = None, error: str | None = None,
-                traceback: str | None = None, worker: str | None = None) -> CaseRecord:
+                traceback: str | None = None, worker: str | None = None, files: Mapping[str, bytes] | None = None,
+                bounds: Mapping[str, Any] | None = None) -> CaseRecord:
     """The files and index row of a case: a solver outcome (``solution``, its
-    ``summary`` and ``vtu``) or an ``error`` (one line; the ``traceback`` goes to
-    ``summary.json``)."""
+    ``summary`` and ``vtu``; an adaptive case adds its ``files`` and ``bounds``) or
+    an ``error`` (one line; the ``traceback`` goes to ``summary.json``)."""
     spec = inp.spec
+    extra_files = dict(files or {})
     mesh_points, mesh_cells = inp.arrays["points"], inp.arrays["cells"]
     head = {"case": inp.case_id, "problem_id": inp.problem_id, "campaign": campaign, "params": dict(params)}
     files = {"input.json": _json_bytes({**head, "input": spec}), "mesh.npz": _npz_bytes(inp.arrays)}
@@ -249,6 +265,10 @@ def case_record(inp: ResolvedInput, params: Mapping[str, Any], campaign: str, *,
     files["summary.json"] = _json_bytes({**head, **summary})
     if vtu is not None:
         files["solution.vtu"] = vtu
+    files.update(extra_files)
+    if bounds is not None:
+        row.update({k: bounds[k] for k in ("final_elements", "energy_lower", "energy_upper", "energy_gap_rel",
+                                           "U_lower", "U_upper")}, bounds_certified=int(bool(bounds["bounds_certified"])))
     row.update(status=sol.status.value, error=None if sol.converged else sol.message, U=sol.U,
                kkt_worst=sol.kkt.worst, **{f"kkt_{k}": v for k, v in sol.kkt.as_dict().items()},
                duality_gap=sol.duality_gap, iterations=sol.iterations, time_total=sol.time_s,
@@ -317,9 +337,20 @@ class Store:
             raise InputError("case", f"{folder} does not hash to its id (files changed after the run)")
         return inp
 
-    def load_problem(self, case_id: str) -> Problem:
+    def load_problem(self, case_id: str, *, final: bool = True) -> Problem:
+        """The case's problem; for a case with an adaptive target, on the final
+        adapted mesh (the one its solution lives on) unless ``final`` is False."""
+        from dataclasses import replace
+
         inp = self.load_input(case_id)
-        return rebuild_problem(inp.spec, inp.arrays)
+        problem = rebuild_problem(inp.spec, inp.arrays)
+        adapted = self.case_dir(case_id) / "adapted.msh"
+        if final and adapted.is_file():
+            from .mesh import read_mesh
+
+            with self._readable(f"the adapted mesh of case {case_id}"):
+                problem = replace(problem, mesh=read_mesh(adapted))
+        return problem
 
     def load_solution(self, case_id: str, disc=None, *, recertify: bool = False) -> Solution:
         """The stored case as a :class:`Solution`.

@@ -385,3 +385,33 @@ def test_compare_command_line(reference_store, client, tmp_path, capsys):
         assert cells[3] == "converged" and cells[6] == cells[7] == "0.00e+00", line
     assert main([*args, "--method", "no-such-method"]) == 2
     assert capsys.readouterr().err.startswith("error: --method: unknown method 'no-such-method'")
+
+
+def test_adaptive_target_per_case(client, tmp_path):
+    """A campaign case with an [adapt] table runs the adaptive loop to its rtol and
+    stores the final mesh, its solution and its certified bounds; the stored
+    solution re-certifies on the stored final mesh (load_problem gives that mesh)."""
+    path = tmp_path / "c.toml"
+    path.write_text(f'[campaign]\nproblem = "{BASE}"\n\n[mesh]\ndivisions = [10, 5]\n\n[solver]\nmethod = "newton"\n\n'
+                    '[adapt]\nbracket = "final"\ncompare_uniform = false\n\n[sweep]\n"adapt.rtol" = [0.2, 0.05]\n')
+    campaign = cp.load_campaign(path)
+    assert len(campaign.cases) == 2 and all("adapt" in c.input.spec for c in campaign.cases)
+    out = tmp_path / "store"
+    cp.run_campaign(campaign, out, client=client, progress=False)
+    store = Store(out)
+    rows = {json.loads(r["params"])["adapt.rtol"]: r for r in store.rows()}
+    for rtol, row in rows.items():
+        assert row["status"] == "converged" and row["bounds_certified"] == 1
+        assert row["energy_gap_rel"] <= rtol
+        assert row["energy_lower"] <= row["energy_upper"] and row["U_lower"] <= row["U"] <= row["U_upper"]
+        problem = store.load_problem(row["id"])  # the adapted mesh
+        assert problem.mesh.n_elements == row["final_elements"] > row["n_elements"]
+        sol = store.load_solution(row["id"], recertify=True)
+        assert sol.kkt.worst <= 1e-8  # the case's tol (AdaptOptions.tol) on the adapted mesh
+    assert rows[0.05]["final_elements"] > rows[0.2]["final_elements"]  # a tighter target takes more elements
+    # an [adapt] option out of range is refused at load, naming the axis
+    bad = tmp_path / "bad.toml"
+    bad.write_text(path.read_text().replace('[0.2, 0.05]', '[0.2, 0.0]'))
+    with pytest.raises(ep.InputError) as exc:
+        cp.load_campaign(bad)
+    assert exc.value.field == "sweep.adapt.rtol"

@@ -56,7 +56,7 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 
 from .errors import InputError
-from .output import json_text
+from .output import check_output_dir, json_text, staged_output
 from .problem import SECTIONS, problem_from_dict, read_toml
 from .solvers import check_solvable, method_options, solver_settings
 from .store import ERROR, ResolvedInput, Store, atomic_write, case_record, content_hash, rebuild_problem, resolve
@@ -659,6 +659,8 @@ def compare(store_dir: str | Path, method: str, *, options: Mapping[str, Any] | 
     if not store.exists():
         raise InputError("store", f"no campaign store at {store.path} (no index.sqlite)")
     method, options = solver_settings({"method": method, **(options or {})}, prefix="compare")
+    out_dir = Path(out) if out is not None else store.path / f"compare-{method}"
+    check_output_dir(out_dir, "out")  # before any work
     where, params = "status = 'converged'", ()
     if reference_method is not None:
         where, params = where + " AND method = ?", (reference_method,)
@@ -691,10 +693,9 @@ def compare(store_dir: str | Path, method: str, *, options: Mapping[str, Any] | 
                          iterations=res["iterations"], message=res["message"], **res["errors"][row["id"]])
         rows_out.append(entry)
     comparison = Comparison(method=method, rows=tuple(rows_out), summary=_summarise(rows_out, len(by_problem)))
-    out = Path(out) if out is not None else store.path / f"compare-{method}"
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write(out / "report.md", comparison.markdown().encode())
-    atomic_write(out / "compare.json", json_text({"method": method, "options": options, "rows": rows_out,
-                                                  "summary": comparison.summary}).encode())
-    plot_comparison(comparison, out / "compare.png")
+    with staged_output(out_dir, "out") as tmp:
+        atomic_write(tmp / "report.md", comparison.markdown().encode())
+        atomic_write(tmp / "compare.json", json_text({"method": method, "options": options, "rows": rows_out,
+                                                      "summary": comparison.summary}).encode())
+        plot_comparison(comparison, tmp / "compare.png")
     return comparison

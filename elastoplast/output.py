@@ -93,7 +93,7 @@ def write_vtu(path: str | Path, disc: Discretization, sol: Solution, cell_data: 
 #: is elastoplast's to replace
 OUTPUT_MARKER = ".elastoplast-output.json"
 #: what earlier versions wrote, before the marker existed
-LEGACY_OUTPUTS = frozenset({"summary.json", "solution.vtu", "convergence.png"})
+LEGACY_OUTPUTS = frozenset({"summary.json", "solution.vtu", "convergence.png", "report.md", "compare.json", "compare.png"})
 
 
 def check_output_dir(out_dir: str | Path, field: str = "out") -> Path:

@@ -33,11 +33,19 @@ facet is fixed in P1 because the clamped facet's trace is zero there). Group fac
 that are interior facets of the mesh are ignored: continuity across them is
 enforced anyway, which only shrinks the admissible set (the bound stays valid).
 
-**Proof, not estimate.** A solver's objective is never the bound. The interior-point
+**Proof, not estimate.** A solver's objective is never the bound. The solver's
 answer is repaired (:func:`repair_static`: an exact minimum-norm correction onto the
 linear equality rows, ``lam >= 0`` kept exactly, yield restored vertex by vertex), J
 is then evaluated exactly (:func:`dual_energy`), and an independent admissibility
 check (:func:`certify_static`) must pass for the bound to be reported as guaranteed.
+
+**Solvers.** The program is solved by Clarabel (interior point, the reference) or SCS
+(operator splitting: one factorisation, then cheap iterations), chosen by
+:func:`lower_bound_solver`. In 3D the interior point's repeated KKT factorisations
+dominate (each element's unknowns form a clique coupled through every facet); SCS
+factors once and reached Clarabel's optimum to 1e-9 relative at its default tolerance
+(benchmarks/bounds/solvers.md). Since every answer is repaired and certified, the
+solver changes the tightness of the bound and the time, never its validity.
 
 Limit mode (H = 0, docs/bounds.md): :func:`static_limit_load` maximises F over the same
 constraints with eta = 0; a certified answer is ``F_lower <= F_c``.
@@ -550,7 +558,11 @@ def _kkt_solver(disc: Discretization, options: "LowerBoundOptions") -> str:
 
 
 #: "auto" solves 3D programs from this many elements with SCS, smaller ones and 2D ones
-#: with Clarabel (benchmarks/bounds/solvers.md)
+#: with Clarabel (the reference, tight to 1e-9). Measured (benchmarks/bounds/solvers.md,
+#: quarter sphere, whole lower bound, one run): 600 tetrahedra Clarabel 16.8 s / SCS 5.0 s,
+#: 1,080: 36 / 8, 3,072: 136 / 26, the bounds within 1e-9 relative of each other; below a
+#: few hundred tetrahedra both take seconds. In 2D the interior point keeps up (6,400
+#: triangles Clarabel 1.3x slower, 14,400 as fast) and SCS's iterations grow with the mesh.
 SCS_FROM_ELEMENTS_3D = 500
 #: H = 0 with SCS: the program's yield stress is lowered by this many times ``scs_eps``
 SCS_YIELD_MARGIN_PER_EPS = 100.0
@@ -869,12 +881,12 @@ class _Setup:
     grads: np.ndarray
 
 
-#: the equilibrium-element program's interior point factors a KKT matrix whose fill grows
-#: fast in 3D (about 24 unknowns per element coupled through every facet): measured
-#: (benchmarks/bounds/lower.md, faer) 19 s at 600 and 45 s at 1,080 tetrahedra, growing
-#: faster than n^1.4; 2D 53 s at 14,400 triangles. Beyond these sizes it cannot finish
-#: in reasonable time on a machine like this one (2 cores).
-LOWER_BOUND_MAX_ELEMENTS = {2: 100_000, 3: 8_000}
+#: the largest meshes the lower bound accepts. The interior point (Clarabel) factors a KKT
+#: matrix whose fill grows fast in 3D (about 24 unknowns per element coupled through every
+#: facet): 136 s at 3,072 tetrahedra; 2D 53 s at 14,400 triangles. SCS factors once: the 3D
+#: default problem (12,288 tetrahedra) in about 2 minutes and 2.3 GB, 24,576 tetrahedra in
+#: about 10 minutes and 6.2 GB on 2 shared cores (benchmarks/bounds/solvers.md).
+LOWER_BOUND_MAX_ELEMENTS = {2: 100_000, 3: 25_000}
 
 
 def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions) -> None:
@@ -883,8 +895,8 @@ def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions) -> 
     limit = options.max_elements or LOWER_BOUND_MAX_ELEMENTS[disc.dim]
     if disc.n_elements > limit:
         raise InputError("mesh", f"{disc.n_elements:,} elements: the equilibrium-element lower bound is limited to "
-                                 f"{limit:,} in {disc.dim}D (its interior point's cost grows fast, see "
-                                 "benchmarks/bounds); coarsen the mesh, let 'elastoplast adapt' place the elements, "
+                                 f"{limit:,} in {disc.dim}D (its cost grows fast, see "
+                                 "benchmarks/bounds/solvers.md); coarsen the mesh, let 'elastoplast adapt' place the elements, "
                                  "or raise the limit with the lower bound's max_elements option")
 
 
@@ -943,7 +955,14 @@ def _scs(prog: Program, options: LowerBoundOptions):
     res = scs.SCS(data, _scs_cones(prog.cones), **settings).solve()
     info = res["info"]
     status = _SCS_STATUS.get(int(info["status_val"]), Status.FAILED)
-    return status, str(info["status"]), np.asarray(res["x"]), float(info["pobj"]), int(info["iter"])
+    x = np.array(res["x"], dtype=float)
+    # the slack of the rows -lam + s = 0 (s >= 0, contact_sign_rows) is lam projected onto
+    # lam >= 0, with exact zeros where the contact is inactive: a better start for the
+    # repair than x's own lam, which is off by SCS's residual (tiny values of either sign
+    # would each cost the repair another round)
+    lam = prog.cols["lam"]
+    x[lam] = np.asarray(res["s"])[prog.n_eq: prog.n_eq + lam.stop - lam.start]
+    return status, str(info["status"]), x, float(info["pobj"]), int(info["iter"])
 
 
 @dataclass(frozen=True)

@@ -131,7 +131,26 @@ def test_solver_choice():
     assert quarter.n_elements < eq.SCS_FROM_ELEMENTS_3D
     assert eq.lower_bound_solver(quarter, auto) == "clarabel"
     assert eq.lower_bound_solver(quarter, SCS) == "scs"
+    larger = build(sphere_quarter_dict(divisions=(5, 5, 4)))
+    assert larger.n_elements >= eq.SCS_FROM_ELEMENTS_3D
+    assert eq.lower_bound_solver(larger, auto) == "scs"
+    assert eq.lower_bound_solver(larger, auto, limit=True) == "clarabel"
     with pytest.raises(ep.InputError, match="solver"):
         eq.LowerBoundOptions(solver="admm")
     with pytest.raises(ep.InputError, match="scs_eps"):
         eq.LowerBoundOptions(scs_eps=0.0)
+
+
+def test_size_limit_follows_the_solver(monkeypatch):
+    """The limit-load program runs on Clarabel, whose size limit is lower than SCS's."""
+    disc = build(sphere_quarter_dict(divisions=(5, 5, 4)))
+    monkeypatch.setitem(eq.CLARABEL_MAX_ELEMENTS, 3, disc.n_elements - 1)
+    eq.check_lower_bound_size(disc, eq.LowerBoundOptions())  # the energy program on SCS: accepted
+    with pytest.raises(ep.InputError, match="clarabel is limited to"):
+        eq.check_lower_bound_size(disc, eq.LowerBoundOptions(), limit=True)
+    with pytest.raises(ep.InputError, match="mesh"):
+        eq.solve_lower_bound(disc, CLARABEL)
+    monkeypatch.setitem(eq.LOWER_BOUND_MAX_ELEMENTS, 3, disc.n_elements - 1)
+    with pytest.raises(ep.InputError, match="scs is limited to"):
+        eq.check_lower_bound_size(disc, eq.LowerBoundOptions())
+    eq.check_lower_bound_size(disc, eq.LowerBoundOptions(max_elements=disc.n_elements))  # the option overrides

@@ -559,10 +559,11 @@ def _kkt_solver(disc: Discretization, options: "LowerBoundOptions") -> str:
 
 #: "auto" solves 3D programs from this many elements with SCS, smaller ones and 2D ones
 #: with Clarabel (the reference, tight to 1e-9). Measured (benchmarks/bounds/solvers.md,
-#: quarter sphere, whole lower bound, one run): 600 tetrahedra Clarabel 16.8 s / SCS 5.0 s,
-#: 1,080: 36 / 8, 3,072: 136 / 26, the bounds within 1e-9 relative of each other; below a
-#: few hundred tetrahedra both take seconds. In 2D the interior point keeps up (6,400
-#: triangles Clarabel 1.3x slower, 14,400 as fast) and SCS's iterations grow with the mesh.
+#: quarter sphere, whole lower bound, one run, 2 shared cores): 600 tetrahedra Clarabel
+#: 13.0 s / SCS 5.4 s, 1,080: 33.9 / 16.0, 3,072: 198 / 19.8, the bounds within 1.1e-9
+#: relative of each other; below a few hundred tetrahedra both take seconds. In 2D the
+#: interior point keeps up (6,400 triangles SCS 1.2x slower, 14,400 1.4x) and SCS's
+#: iterations grow with the mesh (125 to 575).
 SCS_FROM_ELEMENTS_3D = 500
 #: H = 0 with SCS: the program's yield stress is lowered by this many times ``scs_eps``
 SCS_YIELD_MARGIN_PER_EPS = 100.0
@@ -886,9 +887,9 @@ class _Setup:
 
 #: the largest meshes the lower bound accepts. The interior point (Clarabel) factors a KKT
 #: matrix whose fill grows fast in 3D (about 24 unknowns per element coupled through every
-#: facet): 136 s at 3,072 tetrahedra; 2D 53 s at 14,400 triangles. SCS factors once: the 3D
-#: default problem (12,288 tetrahedra) in about 2 minutes and 2.3 GB, 24,576 tetrahedra in
-#: about 10 minutes and 6.2 GB on 2 shared cores (benchmarks/bounds/solvers.md).
+#: facet): 198 s at 3,072 tetrahedra; 2D 47 s at 14,400 triangles. SCS factors once: the 3D
+#: default problem (12,288 tetrahedra) in 93 s and 2.2 GB, 24,576 tetrahedra in 357 s and
+#: 4.9 GB (benchmarks/bounds/solvers.md, 2 shared cores).
 LOWER_BOUND_MAX_ELEMENTS = {2: 100_000, 3: 25_000}
 #: the same with Clarabel (the limit-load program, or ``solver="clarabel"``): 3D 8,000
 CLARABEL_MAX_ELEMENTS = {2: 100_000, 3: 8_000}

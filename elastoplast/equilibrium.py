@@ -33,11 +33,19 @@ facet is fixed in P1 because the clamped facet's trace is zero there). Group fac
 that are interior facets of the mesh are ignored: continuity across them is
 enforced anyway, which only shrinks the admissible set (the bound stays valid).
 
-**Proof, not estimate.** A solver's objective is never the bound. The interior-point
+**Proof, not estimate.** A solver's objective is never the bound. The solver's
 answer is repaired (:func:`repair_static`: an exact minimum-norm correction onto the
 linear equality rows, ``lam >= 0`` kept exactly, yield restored vertex by vertex), J
 is then evaluated exactly (:func:`dual_energy`), and an independent admissibility
 check (:func:`certify_static`) must pass for the bound to be reported as guaranteed.
+
+**Solvers.** The program is solved by Clarabel (interior point, the reference) or SCS
+(operator splitting: one factorisation, then cheap iterations), chosen by
+:func:`lower_bound_solver`. In 3D the interior point's repeated KKT factorisations
+dominate (each element's unknowns form a clique coupled through every facet); SCS
+factors once and reached Clarabel's optimum to 1e-9 relative at its default tolerance
+(benchmarks/bounds/solvers.md). Since every answer is repaired and certified, the
+solver changes the tightness of the bound and the time, never its validity.
 
 Limit mode (H = 0, docs/bounds.md): :func:`static_limit_load` maximises F over the same
 constraints with eta = 0; a certified answer is ``F_lower <= F_c``.
@@ -491,6 +499,10 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
 # ----------------------------------------------------------------------------
 
 
+#: the solvers of the lower-bound programs (:attr:`LowerBoundOptions.solver`)
+LOWER_BOUND_SOLVERS = ("clarabel", "scs")
+
+
 @dataclass(frozen=True)
 class LowerBoundOptions(SolverOptions):
     """Settings of the lower-bound programs (declared and checked like every
@@ -506,6 +518,15 @@ class LowerBoundOptions(SolverOptions):
     sigma_y and is weaker by about ``yield_margin`` relative.
     ``psi_subdivisions``: pieces per facet edge for the interval enclosure of an
     ``expression`` obstacle.
+
+    ``solver``: ``"clarabel"`` (interior point, the reference), ``"scs"`` (SCS,
+    operator splitting with one factorisation of its KKT matrix, MKL PARDISO where
+    installed) or ``"auto"`` (:func:`lower_bound_solver`). Whatever the solver, its
+    answer goes through the same repair and certificate, so the choice changes the
+    tightness and the time, never the validity. ``scs_eps``: SCS's absolute and
+    relative tolerance; ``scs_max_iter`` its iteration limit. With H = 0 the SCS
+    program uses the larger margin ``max(yield_margin, SCS_YIELD_MARGIN_PER_EPS *
+    scs_eps)`` (its residuals are of the size of ``scs_eps``, not 1e-9).
     """
 
     tol: float = option(CERTIFY_TOL, float, "tolerance of the admissibility certificate", lo=TIGHTEST_TOL, hi=1e-8)
@@ -518,6 +539,9 @@ class LowerBoundOptions(SolverOptions):
                                    hi=64)
     max_elements: int | None = option(None, int, "largest mesh accepted (none: LOWER_BOUND_MAX_ELEMENTS)", lo=1,
                                       hi=100_000_000, none=True)
+    solver: str = option("auto", str, "solver of the lower-bound program", choices=("auto", *LOWER_BOUND_SOLVERS))
+    scs_eps: float = option(1e-6, float, "SCS's absolute and relative tolerance", lo=1e-12, hi=1e-2)
+    scs_max_iter: int = option(100_000, int, "SCS's iteration limit", lo=1, hi=10_000_000)
 
 
 #: 3D meshes from this many elements use Clarabel's faer factorisation, smaller ones and
@@ -531,6 +555,36 @@ def _kkt_solver(disc: Discretization, options: "LowerBoundOptions") -> str:
     if options.linear_solver != "auto":
         return options.linear_solver
     return "faer" if disc.dim == 3 and disc.n_elements >= FAER_FROM_ELEMENTS_3D else "qdldl"
+
+
+#: "auto" solves 3D programs from this many elements with SCS, smaller ones and 2D ones
+#: with Clarabel (the reference, tight to 1e-9). Measured (benchmarks/bounds/solvers.md,
+#: quarter sphere, whole lower bound, one run, 2 shared cores): 600 tetrahedra Clarabel
+#: 13.0 s / SCS 5.4 s, 1,080: 33.9 / 16.0, 3,072: 198 / 19.8, the bounds within 1.1e-9
+#: relative of each other; below a few hundred tetrahedra both take seconds. In 2D the
+#: interior point keeps up (6,400 triangles SCS 1.2x slower, 14,400 1.4x) and SCS's
+#: iterations grow with the mesh (125 to 575).
+SCS_FROM_ELEMENTS_3D = 500
+#: H = 0 with SCS: the program's yield stress is lowered by this many times ``scs_eps``
+SCS_YIELD_MARGIN_PER_EPS = 100.0
+
+
+def lower_bound_solver(disc: Discretization, options: "LowerBoundOptions", limit: bool = False) -> str:
+    """The solver ``options.solver`` names; for ``"auto"``, SCS for the energy program on
+    3D meshes of at least :data:`SCS_FROM_ELEMENTS_3D` elements, Clarabel otherwise and
+    for the limit-load program (``limit``: no quadratic term, where SCS needs thousands
+    of iterations; measured on the quarter sphere with H = 0, 288 tetrahedra: Clarabel
+    4.3 s, SCS 25 s and 5,050 iterations, the same F_lower to 2e-6)."""
+    if options.solver != "auto":
+        return options.solver
+    return "scs" if not limit and disc.dim == 3 and disc.n_elements >= SCS_FROM_ELEMENTS_3D else "clarabel"
+
+
+def _yield_margin(solver: str, options: "LowerBoundOptions") -> float:
+    """H = 0: the relative margin below sigma_y of the energy program (see :class:`LowerBoundOptions`)."""
+    if solver == "scs":
+        return min(max(options.yield_margin, SCS_YIELD_MARGIN_PER_EPS * options.scs_eps), 1e-2)
+    return options.yield_margin
 
 
 @dataclass(frozen=True)
@@ -763,7 +817,7 @@ class LowerBound:
 
     ``J`` is evaluated exactly at the repaired ``field`` (user units); it is a proof
     when ``certified`` (the certificate passed and the obstacle term is a proved
-    over-estimate). ``J_solver`` is the interior point's objective, for information
+    over-estimate). ``J_solver`` is the solver's objective, for information
     only. ``local`` holds the per-element and per-facet terms (:class:`LocalTerms`).
     """
 
@@ -780,6 +834,8 @@ class LowerBound:
     iterations: int
     repair_residual: float
     contact_zeroed: int = 0
+    #: the solver of the program, "clarabel" or "scs" (:attr:`LowerBoundOptions.solver`)
+    solver: str = "clarabel"
 
     @property
     def lower(self) -> float:
@@ -805,7 +861,7 @@ class LowerBound:
 class LimitLowerBound:
     """``F_lower <= F_c`` (perfect plasticity, yield stress sigma_y; hardening ignored)
     from the equilibrium element: a proof when ``certified``. ``F_solver`` is the
-    interior point's optimum before repair and scaling."""
+    solver's optimum before repair and scaling."""
 
     F_lower: float
     certified: bool
@@ -816,6 +872,8 @@ class LimitLowerBound:
     timings: dict[str, float]
     F_solver: float
     iterations: int
+    #: the solver of the program, "clarabel" or "scs" (:attr:`LowerBoundOptions.solver`)
+    solver: str = "clarabel"
 
 
 @dataclass(frozen=True)
@@ -827,27 +885,31 @@ class _Setup:
     grads: np.ndarray
 
 
-#: the equilibrium-element program's interior point factors a KKT matrix whose fill grows
-#: fast in 3D (about 24 unknowns per element coupled through every facet): measured
-#: (benchmarks/bounds/lower.md, faer) 19 s at 600 and 45 s at 1,080 tetrahedra, growing
-#: faster than n^1.4; 2D 53 s at 14,400 triangles. Beyond these sizes it cannot finish
-#: in reasonable time on a machine like this one (2 cores).
-LOWER_BOUND_MAX_ELEMENTS = {2: 100_000, 3: 8_000}
+#: the largest meshes the lower bound accepts. The interior point (Clarabel) factors a KKT
+#: matrix whose fill grows fast in 3D (about 24 unknowns per element coupled through every
+#: facet): 198 s at 3,072 tetrahedra; 2D 47 s at 14,400 triangles. SCS factors once: the 3D
+#: default problem (12,288 tetrahedra) in 93 s and 2.2 GB, 24,576 tetrahedra in 357 s and
+#: 4.9 GB (benchmarks/bounds/solvers.md, 2 shared cores).
+LOWER_BOUND_MAX_ELEMENTS = {2: 100_000, 3: 25_000}
+#: the same with Clarabel (the limit-load program, or ``solver="clarabel"``): 3D 8,000
+CLARABEL_MAX_ELEMENTS = {2: 100_000, 3: 8_000}
 
 
-def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions) -> None:
-    """Refuse a mesh the lower-bound program cannot finish (``options.max_elements``
-    or :data:`LOWER_BOUND_MAX_ELEMENTS`), naming the size."""
-    limit = options.max_elements or LOWER_BOUND_MAX_ELEMENTS[disc.dim]
-    if disc.n_elements > limit:
-        raise InputError("mesh", f"{disc.n_elements:,} elements: the equilibrium-element lower bound is limited to "
-                                 f"{limit:,} in {disc.dim}D (its interior point's cost grows fast, see "
-                                 "benchmarks/bounds); coarsen the mesh, let 'elastoplast adapt' place the elements, "
+def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, limit: bool = False) -> None:
+    """Refuse a mesh the lower-bound program cannot finish (``options.max_elements``, or
+    :data:`LOWER_BOUND_MAX_ELEMENTS` and with Clarabel :data:`CLARABEL_MAX_ELEMENTS`),
+    naming the size; ``limit`` for the limit-load program."""
+    solver = lower_bound_solver(disc, options, limit)
+    largest = options.max_elements or (CLARABEL_MAX_ELEMENTS if solver == "clarabel" else LOWER_BOUND_MAX_ELEMENTS)[disc.dim]
+    if disc.n_elements > largest:
+        raise InputError("mesh", f"{disc.n_elements:,} elements: the equilibrium-element lower bound with {solver} is "
+                                 f"limited to {largest:,} in {disc.dim}D (its cost grows fast, see "
+                                 "benchmarks/bounds/solvers.md); coarsen the mesh, let 'elastoplast adapt' place the elements, "
                                  "or raise the limit with the lower bound's max_elements option")
 
 
-def _setup(disc: Discretization, options: LowerBoundOptions, force: float | None = None) -> _Setup:
-    check_lower_bound_size(disc, options)
+def _setup(disc: Discretization, options: LowerBoundOptions, force: float | None = None, limit: bool = False) -> _Setup:
+    check_lower_bound_size(disc, options, limit)
     topo = facet_topology(disc.mesh, disc.problem.boundary)
     psi = psi_weights(disc, topo, options.psi_subdivisions)
     nd, units = nondimensionalize(disc if force is None else disc.with_force(force))
@@ -863,6 +925,85 @@ def _clarabel(prog: Program, options: LowerBoundOptions, solver: str = "qdldl"):
     res = clarabel.DefaultSolver(prog.P, prog.q, prog.A, prog.b, prog.cones, clarabel_settings(conic, solver)).solve()
     raw = str(res.status).split(".")[-1]
     return _CLARABEL_STATUS.get(raw, Status.FAILED), raw, np.asarray(res.x), float(res.obj_val), int(res.iterations)
+
+
+#: SCS's ``status_val`` (scs/include/glbopts.h) -> Status; 2 is "solved inaccurate", what
+#: SCS returns at its iteration or time limit with a usable point
+_SCS_STATUS = {1: Status.CONVERGED, 2: Status.MAX_ITERATIONS, -2: Status.INFEASIBLE, -7: Status.INFEASIBLE}
+
+
+def _scs_cones(cones: list) -> dict:
+    """Clarabel's cone list as SCS's cone dictionary (same row order: zero, nonnegative, SOC)."""
+    z = sum(c.dim for c in cones if type(c).__name__ == "ZeroConeT")
+    nn = sum(c.dim for c in cones if type(c).__name__ == "NonnegativeConeT")
+    q = [c.dim for c in cones if type(c).__name__ == "SecondOrderConeT"]
+    if len(cones) != (z > 0) + (nn > 0) + len(q):
+        raise ValueError("cones other than zero, nonnegative and second-order")
+    return {"z": z, "l": nn, "q": q}
+
+
+def _scs(prog: Program, options: LowerBoundOptions):
+    """SCS (O'Donoghue et al. 2016, 2021) on the same data ``(P, q, A, b, cones)``:
+    SCS's and Clarabel's conventions agree (``A x + s = b``, ``s`` in the cones).
+    Returns ``(status, raw status, x, objective, iterations)`` like :func:`_clarabel`.
+
+    SCS is Douglas-Rachford splitting on the homogeneous self-dual embedding:
+    each iteration solves one linear system with a matrix factored once (MKL PARDISO
+    where installed, else QDLDL) and projects onto the cones (per element vertex, in
+    closed form), with Anderson acceleration. Its residuals are of the size of
+    ``scs_eps``; the repair makes its answer exactly admissible whatever they are.
+    """
+    import scs
+
+    settings = dict(eps_abs=options.scs_eps, eps_rel=options.scs_eps, max_iters=options.scs_max_iter,
+                    verbose=options.verbose)
+    if options.time_limit is not None:
+        settings["time_limit_secs"] = float(options.time_limit)
+    data = {"P": sp.triu(prog.P, format="csc"), "A": sp.csc_matrix(prog.A), "b": prog.b, "c": prog.q}
+    res = scs.SCS(data, _scs_cones(prog.cones), **settings).solve()
+    info = res["info"]
+    status = _SCS_STATUS.get(int(info["status_val"]), Status.FAILED)
+    x = np.array(res["x"], dtype=float)
+    # the slack of the rows -lam + s = 0 (s >= 0, contact_sign_rows) is lam projected onto
+    # lam >= 0, with exact zeros where the contact is inactive: a better start for the
+    # repair than x's own lam, which is off by SCS's residual (tiny values of either sign
+    # would each cost the repair another round)
+    lam = prog.cols["lam"]
+    x[lam] = np.asarray(res["s"])[prog.n_eq: prog.n_eq + lam.stop - lam.start]
+    return status, str(info["status"]), x, float(info["pobj"]), int(info["iter"])
+
+
+@dataclass(frozen=True)
+class _Answer:
+    """A solver's answer to a lower-bound program, in its own words and in ours:
+    ``infeasible`` (no admissible field) and ``unbounded`` (the objective has no
+    bound below) are its certificates, whichever solver gave them."""
+
+    solver: str
+    status: Status
+    raw: str
+    x: np.ndarray
+    objective: float
+    iterations: int
+
+    @property
+    def infeasible(self) -> bool:
+        return self.raw in ("PrimalInfeasible", "AlmostPrimalInfeasible", "infeasible", "infeasible_inaccurate")
+
+    @property
+    def unbounded(self) -> bool:
+        return self.raw in ("DualInfeasible", "AlmostDualInfeasible", "unbounded", "unbounded_inaccurate")
+
+    @property
+    def label(self) -> str:
+        return f"{'SCS' if self.solver == 'scs' else 'Clarabel'}: {self.raw}"
+
+
+def _solve_program(disc: Discretization, prog: Program, options: LowerBoundOptions, solver: str) -> _Answer:
+    """``prog`` solved by ``solver`` ("clarabel" or "scs")."""
+    if solver == "scs":
+        return _Answer(solver, *_scs(prog, options))
+    return _Answer(solver, *_clarabel(prog, options, _kkt_solver(disc, options)))
 
 
 def _field(s: _Setup, prog: Program, x: np.ndarray, force: float) -> StaticField:
@@ -897,7 +1038,9 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
     at vertices off the yield surface: the P1 mass matrix couples the vertices, and
     ``(tau, eta)`` with ``sigma_y + eta >= sqrt(3/2)|dev tau|`` is admissible whatever
     the sign of eta, see :class:`StaticCertificate`); H = 0: the
-    program used ``(1 - yield_margin) sigma_y``; J evaluated exactly; the certificate.
+    program used ``(1 - margin) sigma_y`` (``yield_margin``, larger with SCS, see
+    :class:`LowerBoundOptions`); J evaluated exactly; the certificate. The program
+    is solved by :func:`lower_bound_solver`'s choice.
 
     Raises :class:`InputError` (``load.force``) when H = 0 and the solver proves
     that no field of the equilibrium element carries F.
@@ -905,10 +1048,12 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     s = _setup(disc, options)
+    solver = lower_bound_solver(disc, options)
     m = disc.material
     nd = s.nd
     if m.hardening == 0:
-        nd = replace(nd, problem=replace(nd.problem, material=replace(nd.material, yield_stress=nd.material.yield_stress * (1 - options.yield_margin))))
+        margin = _yield_margin(solver, options)
+        nd = replace(nd, problem=replace(nd.problem, material=replace(nd.material, yield_stress=nd.material.yield_stress * (1 - margin))))
     q_nd = s.psi.q / (s.units.displacement * s.units.length ** (disc.dim - 1))
     timings["setup"] = time.perf_counter() - t0
     progs: dict[bool, Program] = {}
@@ -918,20 +1063,20 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
         t1 = time.perf_counter()
         prog = progs[with_yield] = lower_bound_program(nd_, s.topo, s.grads, q_nd, with_yield=with_yield)
         t2 = time.perf_counter()
-        status, raw, x, obj, iters = _clarabel(prog, options, _kkt_solver(disc, options))
+        ans = _solve_program(disc, prog, options, solver)
         timings["assemble"] = timings.get("assemble", 0.0) + t2 - t1
         timings["solve"] = timings.get("solve", 0.0) + time.perf_counter() - t2
-        tau = x[prog.cols["tau"]].reshape(-1, nd_.k) / np.repeat(prog.weights, nd_.dim + 1)[:, None]
-        return status, raw, iters, tau, x, obj, with_yield
+        tau = ans.x[prog.cols["tau"]].reshape(-1, nd_.k) / np.repeat(prog.weights, nd_.dim + 1)[:, None]
+        return ans.status, ans, ans.iterations, tau, with_yield
 
-    status, raw, iters, _, x, obj, with_yield = scaled(nd)
-    prog = progs[with_yield]
+    status, ans, iters, _, with_yield = scaled(nd)
+    prog, x = progs[with_yield], ans.x
     if status is Status.INFEASIBLE or not np.all(np.isfinite(x)):
-        if m.hardening == 0 and raw in ("PrimalInfeasible", "AlmostPrimalInfeasible"):
+        if m.hardening == 0 and ans.infeasible:
             raise InputError("load.force", f"no stress field of the equilibrium element on this mesh carries F = {disc.force:g} "
                              "within the yield surface (H = 0): F is above this mesh's lower-bound limit load "
                              "(see static_limit_load); reduce the force, refine the mesh or give hardening > 0")
-        raise InputError("load.force", f"the lower-bound program failed (Clarabel: {raw}); no bound")
+        raise InputError("load.force", f"the lower-bound program failed ({ans.label}); no bound")
 
     t1 = time.perf_counter()
     field, resid, zeroed = _repaired_field(disc, s, prog, x)
@@ -944,15 +1089,15 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
     timings["total"] = time.perf_counter() - t0
 
     certified = cert.passed and s.psi.rigorous
-    msg = [f"Clarabel: {raw}", f"repair residual {resid:.1e}, {zeroed} contact pressure(s) fixed at 0"]
+    msg = [ans.label, f"repair residual {resid:.1e}, {zeroed} contact pressure(s) fixed at 0"]
     if not cert.passed:
         msg.append(f"NOT certified: {', '.join(f'{k} {getattr(cert, k):.1e}' for k in cert.failed)} above {cert.tol:.0e}")
     if not s.psi.rigorous:
         msg.append(f"NOT certified: obstacle term is the {s.psi.method}")
     energy_unit = s.units.force * s.units.displacement
     return LowerBound(field=field, J=J, certified=certified, certificate=cert, status=status, message="; ".join(msg),
-                      timings=timings, local=local, psi_method=s.psi.method, J_solver=obj * energy_unit,
-                      iterations=iters, repair_residual=resid, contact_zeroed=zeroed)
+                      timings=timings, local=local, psi_method=s.psi.method, J_solver=ans.objective * energy_unit,
+                      iterations=iters, repair_residual=resid, contact_zeroed=zeroed, solver=solver)
 
 
 def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBoundOptions()) -> LimitLowerBound:
@@ -969,22 +1114,24 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     timings: dict[str, float] = {}
     m = disc.material
     area = facet_measure(disc.mesh.points[facet_topology(disc.mesh, disc.problem.boundary).contact_facets]).sum()
-    s = _setup(disc, options, force=m.yield_stress * area)  # stress unit = sigma_y
+    s = _setup(disc, options, force=m.yield_stress * area, limit=True)  # stress unit = sigma_y
     prog = lower_bound_program(s.nd, s.topo, s.grads, np.zeros_like(s.psi.q), limit=True)
     timings["setup"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    status, raw, x, obj, iters = _clarabel(prog, options, _kkt_solver(disc, options))
+    solver = lower_bound_solver(disc, options, limit=True)
+    ans = _solve_program(disc, prog, options, solver)
+    status, x, iters = ans.status, ans.x, ans.iterations
     timings["solve"] = time.perf_counter() - t1
     F_solver = float(x[prog.cols["force"]] * s.units.force) if x.size else float("nan")
     empty = StaticField(np.zeros((disc.n_elements, disc.dim + 1, disc.k)), np.zeros((disc.n_elements, disc.dim + 1)),
                         s.topo.contact_facets, np.zeros(s.topo.contact_facets.shape), 0.0)
-    if raw in ("DualInfeasible", "AlmostDualInfeasible"):
-        msg = (f"Clarabel: {raw}: the equilibrium element carries arbitrarily large F within the yield surface "
+    if ans.unbounded:
+        msg = (f"{ans.label}: the equilibrium element carries arbitrarily large F within the yield surface "
                "(no limit load; e.g. a confined contact zone)")
         return LimitLowerBound(float("inf"), False, empty, certify_static(disc.with_force(1.0), replace(empty, force=1.0)),
-                               Status.INFEASIBLE, msg, timings, F_solver, iters)
+                               Status.INFEASIBLE, msg, timings, F_solver, iters, solver)
     if status is Status.INFEASIBLE or not np.all(np.isfinite(x)):
-        raise InputError("boundary", f"the limit-load program failed (Clarabel: {raw})")
+        raise InputError("boundary", f"the limit-load program failed ({ans.label})")
     t1 = time.perf_counter()
     x, resid, zeroed = repair_static(prog, x)
     F = float(x[prog.cols["force"]] * s.units.force)
@@ -995,7 +1142,7 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     timings["repair"] = time.perf_counter() - t1
     cert = certify_static(disc.with_force(field.force), field, options.tol)
     timings["total"] = time.perf_counter() - t0
-    msg = f"Clarabel: {raw}; repair residual {resid:.1e}, yield scaling 1 - {1 - scale:.1e}"
+    msg = f"{ans.label}; repair residual {resid:.1e}, yield scaling 1 - {1 - scale:.1e}"
     if not cert.passed:
         msg += f"; NOT certified: {', '.join(f'{k} {getattr(cert, k):.1e}' for k in cert.failed)} above {cert.tol:.0e}"
-    return LimitLowerBound(field.force, cert.passed, field, cert, status, msg, timings, F_solver, iters)
+    return LimitLowerBound(field.force, cert.passed, field, cert, status, msg, timings, F_solver, iters, solver)

@@ -206,3 +206,32 @@ def test_expression_and_paraboloid_bound_the_same_energy_in_3d():
     for lo in (bp.energy_lower, be.energy_lower):
         for hi in (bp.energy_upper, be.energy_upper):
             assert lo <= hi
+
+
+@pytest.mark.xfail(strict=True, raises=ep.InputError,
+                   reason="certified_bounds solves the lower bound at F + delta without checking that the "
+                          "equilibrium element carries it: with H = 0 and F below this mesh's static limit "
+                          "load but F + delta above it, it raises InputError('load.force') naming F + delta; "
+                          "it should shrink delta below F_lower - F (or report U_upper = inf)")
+def test_u_bracket_near_the_limit_load_with_perfect_plasticity():
+    """H = 0, F = 0.9 F_lower with F_lower this mesh's certified static limit load: the
+    equilibrium element carries F (the energy bracket exists), and a U bracket exists for
+    any delta < F_lower - F. The discrete U_h of the same mesh lies in it (the module
+    docstring's nested-spaces and concavity argument, a mesh being nested in itself;
+    with H = 0 U_h may not be unique, and every minimiser's U is a supergradient)."""
+    import warnings
+
+    from test_limit_load import punch
+
+    from elastoplast.equilibrium import static_limit_load
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the perfect-plasticity warning
+        disc = punch("crossed")
+    lim = static_limit_load(disc)
+    assert lim.certified
+    disc = disc.with_force(0.9 * lim.F_lower)
+    sol = ep.solve(disc, "conic")
+    rep = bd.certified_bounds(disc, sol)
+    assert rep.certified
+    assert rep.U_lower <= sol.U <= rep.U_upper

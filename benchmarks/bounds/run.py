@@ -25,7 +25,7 @@ Across the meshes of a family: every lower bound against every upper bound, each
 bracket against the discrete U_h of the same and every finer mesh, the exponent p of
 ``gap_rel ~ elements^-p`` (least squares in log-log, and per step), and the time
 ratio lower / conic. Writes ``results.json`` + ``REPORT.md`` (stamped) and
-``gap.png``, ``u_bracket.png``, ``time.png``.
+``gap.png``, ``u_bracket.png``, ``time.png`` (time and peak memory).
 """
 
 from __future__ import annotations
@@ -271,15 +271,20 @@ def rates(rows: list[dict]) -> dict:
 
 
 def family_checks(rows: list[dict]) -> dict:
-    """Everything measured across the meshes of a family. ``contact_inside_every_gamma0``:
+    """Everything measured across the meshes of a family. ``time_exponent``: q of
+    ``seconds ~ elements^q`` over the last three meshes. ``contact_inside_every_gamma0``:
     the largest active contact radius of any U_h lies below the smallest rim of any Γ0
     (then the meshes' continuum problems plausibly share their solution, although
     their Γ0 differ)."""
     ok = [r for r in rows if "error" not in r]
     if len(ok) < 2:
         return {}
+    last = ok[-3:]
+    n = np.log([r["elements"] for r in last])
     return {"pairs": pair_check(ok), "U": u_check(ok), "rates": rates(ok),
             "time_ratio": [r["lower_s"] / r["conic_s"] for r in ok],
+            "time_exponent": {k: float(np.polyfit(n, np.log([r[f"{k}_s"] for r in last]), 1)[0])
+                              for k in ("conic", "lower")},
             "all_certified": all(bool(r["bounds_certified"]) for r in ok),
             "contact_inside_every_gamma0": max(r["active_radius"] for r in ok) < min(r["gamma0_rim"] for r in ok)}
 
@@ -369,6 +374,9 @@ def render(res: dict) -> str:
                        "share Π*" if c["contact_inside_every_gamma0"] else
                        "on some mesh the contact set of U_h reaches the rim of Γ0 (active >= rim): those meshes "
                        "bound a different continuum problem") + ": an observation, not a theorem")
+        # p_h = d p is the exponent in h only for (roughly) uniform refinement
+        h_all, h_last = ("", "") if fam["nested"] else (f" (p_h = {rt['p_h_all']:.2f} in h)",
+                                                          f" (p_h = {rt['p_h_last3']:.2f})")
         nested = ("nested meshes: a theorem (nested spaces, concavity)" if fam["nested"] else
                   "meshes not nested: an observation, not a theorem")
         lines += ["", f"- every bound certified: {c['all_certified']}.",
@@ -377,12 +385,15 @@ def render(res: dict) -> str:
                   f"(upper_j - lower_i) / |upper_j| = {p['min_margin_rel']:.2e}); {same}.",
                   f"- U brackets against U_h of the same and every finer mesh: {u['inside']} of {u['checked']} "
                   f"inside ({nested}).",
-                  f"- gap ~ elements^-p: p = {rt['p_all']:.3f} over all meshes (p_h = {rt['p_h_all']:.2f} in h), "
-                  f"{rt['p_last3']:.3f} over the last three (p_h = {rt['p_h_last3']:.2f}); per step p = "
-                  + ", ".join(f"{v:.2f}" for v in rt["per_step"]) + ", that is a drop by "
-                  + ", ".join(f"{v:.2f}" for v in rt["per_halving"]) + " per halving of h; measured drop per step "
-                  + ", ".join(f"{v:.2f}" for v in rt["factor"]) + ".",
-                  "- lower-bound time / conic time: " + ", ".join(f"{v:.0f}" for v in c["time_ratio"]) + "."]
+                  f"- gap ~ elements^-p: p = {rt['p_all']:.3f} over all meshes{h_all}, "
+                  f"{rt['p_last3']:.3f} over the last three{h_last}; per step p = "
+                  + ", ".join(f"{v:.2f}" for v in rt["per_step"])
+                  + ("" if fam["nested"] else  # local refinement: h does not halve uniformly
+                     ", that is a drop by " + ", ".join(f"{v:.2f}" for v in rt["per_halving"]) + " per halving of h")
+                  + "; measured drop per step " + ", ".join(f"{v:.2f}" for v in rt["factor"]) + ".",
+                  "- lower-bound time / conic time: " + ", ".join(f"{v:.0f}" for v in c["time_ratio"])
+                  + f"; time ~ elements^q over the last three meshes: q = {c['time_exponent']['conic']:.2f} (conic), "
+                  f"{c['time_exponent']['lower']:.2f} (lower bound)."]
         lines.append("")
     for name, why in res.get("skipped", {}).items():
         lines.append(f"- {name} skipped: {why}")
@@ -399,6 +410,7 @@ def plots(res: dict, out: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     fams = {k: [r for r in v["meshes"] if "error" not in r] for k, v in res["families"].items()}
     fams = {k: v for k, v in fams.items() if v}
@@ -411,11 +423,16 @@ def plots(res: dict, out: Path) -> None:
         if rt:
             # the least-squares line of p_all through the geometric means
             c = np.exp(np.mean(np.log(g)) + rt["p_all"] * np.mean(np.log(n)))
-            ax.loglog(n, c * n ** -rt["p_all"], "--", color=line.get_color(), label=f"fit: p = {rt['p_all']:.2f}")
+            ax.loglog(n, c * n ** -rt["p_all"], "--", color=line.get_color(),
+                      label=f"fit: p = {rt['p_all']:.2f} (last three: {rt['p_last3']:.2f})")
     _save(fig, [ax], "relative energy gap (upper - lower) / |upper|", out / "gap.png", grid=True)
 
-    fig, axes = plt.subplots(1, len(fams), figsize=(4.5 * len(fams), 4), squeeze=False)
-    for ax, (name, rows) in zip(axes[0], fams.items()):
+    cols = min(2, len(fams))
+    fig, axes = plt.subplots(-(-len(fams) // cols), cols, figsize=(5.5 * cols, 4 * -(-len(fams) // cols)),
+                             squeeze=False)
+    for ax in axes.ravel()[len(fams):]:
+        ax.set_visible(False)
+    for ax, (name, rows) in zip(axes.ravel(), fams.items()):
         n = np.array([r["elements"] for r in rows], dtype=float)
         ax.semilogx(n, [r["U_h"] for r in rows], "k.-", label="U_h (discrete)")
         for r in rows:
@@ -424,23 +441,26 @@ def plots(res: dict, out: Path) -> None:
         ax.plot([], [], "C0-", lw=3, alpha=0.6, label="U bracket")
         ax.axhline(rows[-1]["U_h"], color="k", ls=":", lw=0.8)
         ax.set_title(name, fontsize=9)
-    _save(fig, axes[0], "U", out / "u_bracket.png")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    _save(fig, axes.ravel()[:len(fams)], "U", out / "u_bracket.png")
 
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    fig, (ax, mem) = plt.subplots(1, 2, figsize=(12, 4.5))
     for i, (name, rows) in enumerate(fams.items()):
         n = [r["elements"] for r in rows]
-        ax.loglog(n, [r["conic_s"] for r in rows], "o--", color=f"C{i}", label=f"{name}: (S) conic")
-        ax.loglog(n, [r["lower_s"] for r in rows], "s-", color=f"C{i}", label=f"{name}: lower bound")
-    _save(fig, [ax], "seconds", out / "time.png", grid=True, fontsize=7)
+        for a, key in ((ax, "_s"), (mem, "_peak_mb")):
+            a.loglog(n, [r["conic" + key] for r in rows], "o--", color=f"C{i}", label=f"{name}: (S) conic")
+            a.loglog(n, [r["lower" + key] for r in rows], "s-", color=f"C{i}", label=f"{name}: lower bound")
+    _save(fig, [ax], "seconds", out / "time.png", grid=True, fontsize=7, more=[(mem, "peak memory (MB)")])
 
 
-def _save(fig, axes, ylabel: str, path: Path, grid: bool = False, fontsize: int = 8) -> None:
-    """Label, legend and write a figure whose x axis is the number of elements."""
+def _save(fig, axes, ylabel: str, path: Path, grid: bool = False, fontsize: int = 8, more=()) -> None:
+    """Label, legend and write a figure whose x axis is the number of elements
+    (``more``: further ``(axes, ylabel)`` pairs)."""
     import matplotlib.pyplot as plt
 
-    for ax in axes:
+    for ax, label in [(ax, ylabel) for ax in axes] + list(more):
         ax.set_xlabel("elements")
-        ax.set_ylabel(ylabel)
+        ax.set_ylabel(label)
         if grid:
             ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=fontsize)

@@ -41,6 +41,7 @@ from typing import Callable
 import numpy as np
 
 from .certificate import energy_norm_sq, gaps
+from .errors import InputError
 from .discretize import Discretization
 from .material import Material, return_mapping
 
@@ -510,6 +511,12 @@ def displacement_slope(disc: Discretization, method: str = "conic", step: float 
 # ----------------------------------------------------------------------------
 
 
+#: the smallest energy gap, relative to the energy, used to choose the U bracket's delta
+GAP_FLOOR = 1e-10
+#: times the U bracket's delta above F is divided by 4 when the load there has no admissible field
+BRACKET_RETRIES = 4
+
+
 @dataclass(frozen=True)
 class BoundsReport:
     """The energy bracket of one problem (:class:`Bounds`), the U bracket from the
@@ -553,10 +560,14 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
     """The energy bracket of ``disc`` and, with ``bracket``, the U bracket.
 
     U bracket (:func:`u_bracket`): only the lower bounds are needed at ``F -/+
-    delta`` (``U >= (lo(F - delta) - hi(F)) / delta``, ``U <= (hi(F) - lo(F + delta))
-    / delta``), so two more equilibrium-element programs and no P1 solve; delta is
+    delta`` (``U >= (lo(F - delta) - hi(F)) / delta``, ``U <= (hi(F) - lo(F + delta'))
+    / delta'``), so two more equilibrium-element programs and no P1 solve; delta is
     :func:`choose_delta` with the secant ``U / F`` for ``dU/dF`` (delta only sets
-    how tight the bracket is, never whether it holds).
+    how tight the bracket is, never whether it holds). The two inequalities hold
+    for any delta each: with H = 0 and F + delta above the mesh's static limit
+    load, ``delta'`` is divided by 4 until the equilibrium element carries the
+    load (at most :data:`BRACKET_RETRIES` times; else ``U_upper = inf``, and the
+    bracket is not called certified).
     """
     import time
 
@@ -576,17 +587,28 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
     if not bracket:
         return BoundsReport(bounds=b, upper=upper, lower=lower, timings=timings)
     F = disc.force
-    delta = choose_delta(F, b.energy_gap, sol.U / F if sol.U > 0 else 0.0)
-    side = {F - delta: solve_lower_bound(disc.with_force(F - delta), lower_options),
-            F + delta: solve_lower_bound(disc.with_force(F + delta), lower_options)}
+    # the gap used to choose delta never counts as less than the round-off of the bounds
+    # themselves, so that (round-off of J) / delta stays far below the bracket's width
+    gap = max(b.energy_gap, GAP_FLOOR * abs(b.energy_upper))
+    delta = choose_delta(F, gap, sol.U / F if sol.U > 0 else 0.0)
+    lo_minus = solve_lower_bound(disc.with_force(F - delta), lower_options)
+    # with H = 0, F + delta may lie above the mesh's static limit load (no admissible
+    # field there): each side's secant holds for its own delta, so shrink that one
+    plus, delta_plus = None, delta
+    for _ in range(BRACKET_RETRIES):
+        try:
+            plus = solve_lower_bound(disc.with_force(F + delta_plus), lower_options)
+            break
+        except InputError as exc:
+            if exc.field != "load.force":
+                raise
+            delta_plus /= 4.0
     timings["bracket"] = time.perf_counter() - t2
-
-    def at(force: float) -> tuple[float, float]:
-        return (b.energy_lower, b.energy_upper) if force == F else (side[force].lower, float("nan"))
-
-    U_lo, U_hi = u_bracket(disc, delta, at)
+    U_lo = (lo_minus.lower - b.energy_upper) / delta
+    U_hi = (b.energy_upper - plus.lower) / delta_plus if plus is not None else float("inf")
+    sides = [lo_minus] + ([plus] if plus is not None else [])
     return BoundsReport(bounds=b, upper=upper, lower=lower, U_lower=U_lo, U_upper=U_hi, delta=delta, timings=timings,
-                        bracket_certified=all(lb.certified for lb in side.values()))
+                        bracket_certified=all(lb.certified for lb in sides) and plus is not None)
 
 
 def element_indicators(disc: Discretization, bounds: Bounds) -> np.ndarray:

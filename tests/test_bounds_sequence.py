@@ -208,11 +208,6 @@ def test_expression_and_paraboloid_bound_the_same_energy_in_3d():
             assert lo <= hi
 
 
-@pytest.mark.xfail(strict=True, raises=ep.InputError,
-                   reason="certified_bounds solves the lower bound at F + delta without checking that the "
-                          "equilibrium element carries it: with H = 0 and F below this mesh's static limit "
-                          "load but F + delta above it, it raises InputError('load.force') naming F + delta; "
-                          "it should shrink delta below F_lower - F (or report U_upper = inf)")
 def test_u_bracket_near_the_limit_load_with_perfect_plasticity():
     """H = 0, F = 0.9 F_lower with F_lower this mesh's certified static limit load: the
     equilibrium element carries F (the energy bracket exists), and a U bracket exists for

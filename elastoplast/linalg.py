@@ -211,11 +211,11 @@ class AMG:
     def __init__(self, A: sp.bsr_matrix, B: np.ndarray, **kwargs):
         import pyamg
 
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         kwargs.setdefault("improve_candidates", None)
         self.hierarchy = pyamg.smoothed_aggregation_solver(A, B=B, max_coarse=500, coarse_solver="splu", **kwargs)
         self._M = self.hierarchy.aspreconditioner(cycle="V")
-        self.setup_time = time.perf_counter() - t0
+        self.setup_time = time.process_time() - t0  # CPU seconds: the reuse policy compares costs, not load
 
     def apply(self, r: np.ndarray) -> np.ndarray:
         return self._M @ r
@@ -299,6 +299,10 @@ def pcg(matvec, precond, b: np.ndarray, x0: np.ndarray | None = None, rtol: floa
 # ----------------------------------------------------------------------------
 
 
+#: CG iterations a solve needs before its residual reduction per iteration counts
+RATE_MIN_ITERATIONS = 3
+
+
 def contact_dofs(disc: Discretization) -> np.ndarray:
     """Free-dof number of the vertical dof of each contact node (rows of N)."""
     N = disc.N.tocsr()
@@ -327,8 +331,10 @@ class FaceSystems:
     """
 
     def __init__(self, lay: BlockLayout, free_index: np.ndarray, cdofs: np.ndarray, data: np.ndarray,
-                 weight: float = 0.0, reuse: bool = True):
+                 weight: float = 0.0, reuse: bool = True, recycle: int = 0):
         self.lay, self.free_index, self.weight, self.reuse = lay, free_index, float(weight), reuse
+        self.recycle = recycle
+        self.previous: list[np.ndarray] = []
         self.ec = np.zeros(lay.n_dofs)
         self.ec[free_index[cdofs]] = 1.0
         self.near_null = near_null_space(lay)
@@ -341,6 +347,7 @@ class FaceSystems:
     def set_matrix(self, data: np.ndarray) -> None:
         """A new ``K`` (block values on the layout's pattern); the hierarchy is kept."""
         self.data = data
+        self._cached = None
         self.K = bsr(self.lay, data)
         self.Kec = self.K @ self.ec
         self.c = float(self.ec @ self.Kec) + self.weight
@@ -360,7 +367,7 @@ class FaceSystems:
     def _stale(self, rtol: float) -> bool:
         if self.amg is None or not self.reuse:
             return True
-        if self.rate >= 0.0 or self.rate_fresh >= 0.0:
+        if self.rate_fresh >= 0.0:
             return True
         goal = np.log(max(rtol, 1e-16))
         return (goal / self.rate - goal / self.rate_fresh) * self.iteration_time > self.amg.setup_time
@@ -375,35 +382,63 @@ class FaceSystems:
         with one_blas_thread():
             return self._solve(fixed, rhs, rtol, x0, max_iter)
 
+    def _system(self, fixed_dofs: np.ndarray, rtol: float) -> tuple[BorderedSystem, bool]:
+        """The face system of ``fixed_dofs`` and whether its hierarchy is new; the
+        last one is kept while the matrix, the face and the hierarchy are the same."""
+        rebuild = self._stale(rtol)
+        cached = getattr(self, "_cached", None)
+        if not rebuild and cached is not None and cached[0] is self.data and np.array_equal(cached[1], fixed_dofs) \
+                and cached[2].amg is self.amg:
+            return cached[2], False
+        A = bsr(self.lay, constrain(self.lay, self.data, fixed_dofs))
+        if rebuild:
+            self.amg = self._cached = None  # free the old hierarchy first
+            self.amg = AMG(A, self.near_null)
+            self.setups += 1
+        system = BorderedSystem(A, self.amg, np.where(fixed_dofs, 0.0, self.Kec), self.c)
+        self._cached = (self.data, fixed_dofs, system)
+        return system, rebuild
+
     def _solve(self, fixed, rhs, rtol, x0, max_iter):
         lay = self.lay
         fixed_dofs = ~lay.free
         fixed_dofs[self.free_index[fixed[:-1]]] = True
         t0 = time.perf_counter()
-        A = bsr(lay, constrain(lay, self.data, fixed_dofs))
-        rebuild = self._stale(rtol)
-        if rebuild:
-            self.amg = None  # free the old hierarchy first
-            self.amg = AMG(A, self.near_null)
-            self.setups += 1
-        system = BorderedSystem(A, self.amg, np.where(fixed_dofs, 0.0, self.Kec), self.c)
-        t1 = time.perf_counter()
+        system, rebuild = self._system(fixed_dofs, rtol)
+        t1, c1 = time.perf_counter(), time.process_time()
         r = np.append(np.where(fixed_dofs, 0.0, lay.embed(rhs[:-1], self.free_index)), rhs[-1])
-        start = None
+        norm_r = max(float(np.linalg.norm(r)), np.finfo(float).tiny)
+        start, initial = None, 1.0
         if x0 is not None:
             start = np.append(np.where(fixed_dofs, 0.0, lay.embed(x0[:-1], self.free_index)), x0[-1])
+            initial = np.linalg.norm(r - system.matvec(start)) / norm_r
+        elif self.previous:
+            start, initial = self._galerkin_start(system, r, fixed_dofs)
+            initial /= norm_r
         x, its, ok = pcg(system.matvec, system.precondition, r, start, rtol, max_iter)
-        t2 = time.perf_counter()
-        reached = float(np.linalg.norm(r - system.matvec(x)) / max(np.linalg.norm(r), np.finfo(float).tiny))
-        if its:
-            self.iteration_time = (t2 - t1) / its
-            self.rate = np.log(max(reached, 1e-16)) / its
+        if self.recycle:
+            self.previous = (self.previous + [x])[-self.recycle:]
+        t2, c2 = time.perf_counter(), time.process_time()
+        reached = float(np.linalg.norm(r - system.matvec(x)) / norm_r)
+        if its >= RATE_MIN_ITERATIONS or (rebuild and its):
+            # reduction per iteration from CG's own start (a Galerkin start is not CG's merit);
+            # a solve of one or two iterations says little (CG's residual need not fall monotonically)
+            self.iteration_time = (c2 - c1) / its
+            self.rate = min(np.log(max(reached, 1e-16) / max(initial, 1e-16)) / its, -1e-3)
             if rebuild:
                 self.rate_fresh = self.rate
         out = np.append(x[:-1][self.free_index], x[-1])
         out[fixed] = 0.0
         return out, {"amg_setup": rebuild, "cg_iterations": its, "cg_residual": reached,
                      "setup_time": t1 - t0, "solve_time": t2 - t1}
+
+    def _galerkin_start(self, system: BorderedSystem, r: np.ndarray, fixed_dofs: np.ndarray) -> tuple[np.ndarray, float]:
+        """``x0 = V c`` with ``(V^T H V) c = V^T r`` over the kept solutions, and ``|r - H x0|``."""
+        V = np.stack(self.previous, axis=1)
+        V[:-1][fixed_dofs] = 0.0
+        HV = np.stack([system.matvec(v) for v in V.T], axis=1)
+        coef = np.linalg.lstsq(V.T @ HV, V.T @ r, rcond=1e-12)[0]
+        return V @ coef, float(np.linalg.norm(r - HV @ coef))
 
     def solve_plain(self, rhs: np.ndarray, rtol: float) -> np.ndarray:
         """``K x = rhs`` on the free dofs alone (no contact dof fixed, no U), by CG

@@ -495,20 +495,22 @@ class AMGHessian:
 CG_MAX_ITER = 1000
 
 
-def forcing_term(kkt: float, kkt_prev: float | None, eta_prev: float | None, eta_max: float) -> float:
+def forcing_term(kkt: float, kkt_prev: float | None, eta_prev: float | None, eta_max: float, tol: float) -> float:
     """Relative residual asked of the linear solve (inexact Newton).
 
     Eisenstat & Walker's choice 2 (1996), ``eta = 0.9 (kkt / kkt_prev)^2``,
     with their safeguard ``eta >= 0.9 eta_prev^2`` when that exceeds 0.1,
     capped by ``eta_max``; ``kkt`` is the certificate's worst residual, so the
-    solve tightens as the iteration converges superlinearly. Floor 1e-12.
+    solve tightens as the iteration converges superlinearly. It is never
+    tighter than ``0.1 tol / kkt``: a step whose linear error is that small
+    already lands below ``tol`` (no oversolving), nor than 1e-12.
     """
     if kkt_prev is None or eta_prev is None or not (kkt_prev > 0 and np.isfinite(kkt)):
         return eta_max
     eta = 0.9 * (kkt / kkt_prev) ** 2
     if 0.9 * eta_prev**2 > 0.1:
         eta = max(eta, 0.9 * eta_prev**2)
-    return float(min(eta_max, max(eta, 1e-12)))
+    return float(min(eta_max, max(eta, 0.1 * tol / kkt, 1e-12)))
 
 
 def newton_direction(hess, st, cdofs, lower, rtol, kkt_worst, timings):
@@ -580,7 +582,7 @@ def _newton_loop(nd, monitor, hess, cdofs, lower, y, options, timings, backend):
                     break
                 iteration += 1
                 kkt = monitor.last.worst
-                eta = forcing_term(kkt, kkt_prev, eta, options.forcing_max)
+                eta = forcing_term(kkt, kkt_prev, eta, options.forcing_max, tol)
                 kkt_prev = kkt
                 try:
                     direction, info = newton_direction(hess, st, cdofs, lower, eta, kkt, timings)

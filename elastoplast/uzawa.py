@@ -351,7 +351,7 @@ class DirectProjection:
     def weight(self) -> float:
         return self.ops.weight
 
-    def __call__(self, u, U, r, rho, force, N, psi, lam0=None):
+    def __call__(self, u, U, r, rho, force, N, psi, lam0=None, start=None):
         return project_contact(u, U, r, rho, force, N, psi, self.solve, self.ops, lam0)
 
 
@@ -382,7 +382,7 @@ class IterativeProjection:
 
         lay = block_layout(nd, length)
         self.cdofs = contact_dofs(nd)
-        self.faces = FaceSystems(lay, nd.free, self.cdofs, assemble(lay, M), 0.0, reuse)
+        self.faces = FaceSystems(lay, nd.free, self.cdofs, assemble(lay, M), 0.0, reuse, RECYCLE)
         if weight is None:
             weight = 1.0 / (RIGID_WEIGHT_FACTOR * max(self._trace_estimate(nd), np.finfo(float).tiny))
         if not (np.isfinite(weight) and weight > 0):
@@ -409,14 +409,24 @@ class IterativeProjection:
         for i in picks:
             e = np.zeros(nd.n_free)
             e[self.cdofs[i]] = 1.0
-            total += self.faces.solve_plain(e, 1e-6)[self.cdofs[i]]
+            total += self.faces.solve_plain(e, 1e-4)[self.cdofs[i]]
         return total * n_c / picks.size
 
-    def __call__(self, u, U, r, rho, force, N, psi, lam0=None):
+    def __call__(self, u, U, r, rho, force, N, psi, lam0=None, start=None):
+        """The projection of :func:`project_contact` (same arguments and
+        results); ``start = (v0, V0)`` in K_h (the last answer, when the
+        centre ``u`` is not near it, as in ALG2) is where the search starts:
+        the face solves are then for the change from it."""
         faces, cd = self.faces, self.cdofs
-        y = np.append(u, U)
-        y[cd] -= U
+        centre = np.append(u, U)
+        centre[cd] -= U
         g = np.append(rho * r, rho * (r[cd].sum() - force))
+        if start is None:
+            y = centre
+        else:
+            y = np.append(start[0], start[1])
+            y[cd] -= start[1]
+            g = g + faces.matvec(y - centre)
         lower = -psi
         W = self.active.copy()
         seen = set()
@@ -450,7 +460,9 @@ class IterativeProjection:
 
 
 #: contact nodes whose ``(G^{-1})_ii`` estimate the trace for the automatic weight of V
-TRACE_SAMPLES = 8
+TRACE_SAMPLES = 4
+#: earlier face solutions from which each face solve of step (ii) starts (Galerkin)
+RECYCLE = 8
 #: active-set iterations of one iterative projection (it stops at a cycle too)
 ACTIVE_SET_MAX_ITER = 50
 #: "auto": the metric is solved by AMG-preconditioned CG from this many elements on

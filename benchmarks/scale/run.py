@@ -180,7 +180,7 @@ def plan(sizes: list[int], conic_2d: list[int]) -> list[tuple[int, str, int]]:
             if n <= LIMITS.get(kind, max(sizes)):
                 cases.append((n, kind, 3))
     cases += [(m, "conic", 2) for m in conic_2d]
-    return [(2, "baseline", 3)] + cases
+    return [(4, "baseline", 3)] + cases
 
 
 def fit_exponent(x, y) -> float | None:
@@ -206,7 +206,7 @@ def summarise(records: list[dict]) -> dict:
                                       "cpu": fit_exponent(x, [r["cpu_s"] for r in rows]),
                                       "memory": fit_exponent(x, [r["peak_gb"] - base for r in rows]),
                                       "from_elements": min(x), "to_elements": max(x)}
-    big = max((r["n_elements"] for r in records if r.get("dim") == 3), default=0)
+    big = max((r.get("n_elements", 0) for r in records if r.get("dim") == 3), default=0)
     at = {r["kind"]: r for r in records if r.get("dim") == 3 and r["n_elements"] == big and "error" not in r}
     elastic = [at[k] for k in ("elastic[amg]", "elastic[pardiso]") if k in at]
     if elastic and "newton[amg]" in at:

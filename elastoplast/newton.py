@@ -25,8 +25,13 @@ The Hessian keeps one sparsity pattern for every active set (active rows and
 columns are replaced by their diagonal), so the sparse factorisation's
 symbolic analysis is done once; with PARDISO a stale factorisation also serves
 as a preconditioner for conjugate gradients while that is cheaper than
-refactorising (:class:`NewtonOptions`). Every iterate is judged by the KKT
-certificate of MATH.md section 6.
+refactorising (:class:`NewtonOptions`). On large meshes the face systems are
+solved inexactly instead, by conjugate gradients with smoothed-aggregation AMG
+(:class:`AMGHessian`, :mod:`elastoplast.linalg`), to the relative residual of
+Eisenstat and Walker's forcing term (:func:`forcing_term`); every CG iterate
+is a descent direction on the face, so the line search and the projection
+arc are unchanged. Every iterate is judged by the KKT certificate of MATH.md
+section 6, whatever the linear solver.
 """
 
 from __future__ import annotations
@@ -55,10 +60,18 @@ class NewtonOptions(SolverOptions):
     """Settings of :func:`solve_newton` (``tol``, ``max_iter``, ``time_limit``,
     ``progress``: :class:`~elastoplast.options.SolverOptions`).
 
-    ``linear_solver``: ``"pardiso"`` (MKL, via pypardiso), ``"splu"`` (SciPy) or
-    ``"auto"`` (PARDISO when installed). Measured on the 3D sphere with 111k
-    tetrahedra (52k dofs): PARDISO 0.5 s analysis + 2.1 s factorisation, SciPy's
-    SuperLU 41 s (COLAMD), cholespy 53 s (see benchmarks/methods/README.md).
+    ``linear_solver``: ``"pardiso"`` (MKL, via pypardiso), ``"splu"`` (SciPy),
+    ``"amg"`` (conjugate gradients with smoothed-aggregation AMG,
+    :class:`AMGHessian`) or ``"auto"``: AMG from :data:`AMG_FROM_ELEMENTS`
+    elements on, PARDISO below when installed, else SuperLU. Measured on the 3D
+    sphere with 111k tetrahedra (52k dofs): PARDISO 0.5 s analysis + 2.1 s
+    factorisation, SciPy's SuperLU 41 s (COLAMD), cholespy 53 s (see
+    benchmarks/methods/README.md); the direct and iterative paths against each
+    other from 12k to 1M tetrahedra in benchmarks/scale.
+    ``forcing_max`` (AMG only): the loosest relative residual asked of a Newton
+    step's linear solve (:func:`forcing_term` tightens it as Newton converges).
+    ``amg_reuse`` (AMG only): keep a multigrid hierarchy across steps while a new
+    one would not pay for itself (:class:`~elastoplast.linalg.FaceSystems`).
     ``reuse_factorization``: first try conjugate gradients preconditioned by the
     last factorisation (within 0.3 of a factorisation's measured cost). Off by
     default: on the 3D sphere (41k tetrahedra) it saved one factorisation of

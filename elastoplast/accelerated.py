@@ -82,7 +82,7 @@ class FastOptions(SolverOptions):
     restart: bool = option(True, bool, "adaptive restart of the momentum (FISTA)")
     factorization: str = option("auto", str, "sparse factorisation of the metric, or amg (iterative)",
                                 choices=("auto", *FACTORIZATIONS, "amg"))
-    inner_rtol: float = option(1e-3, float, "amg: relative residual of each face solve of step (ii)",
+    inner_rtol: float = option(1e-2, float, "amg: relative residual of each face solve of step (ii)",
                                lo=1e-14, hi=1e-1)
     variant: str = option("fista", str, "the accelerated method", choices=("fista", "alg2"))
     splitting: str = option("stiffness", str, "ALG2 only: the metric M of the penalty (M = C or I)",

@@ -52,7 +52,8 @@ from .iteration import Monitor, Verdict
 from .linalg import FaceSystems, assemble, block_layout, contact_dofs, one_blas_thread, pcg
 from .material import consistent_tangent, return_mapping
 from .options import LOOSEST_TOL, TIGHTEST_TOL, SolverOptions, option
-from .solution import Solution, Status, value_displacement_form
+from .certificate import energy_density
+from .solution import Solution, Status
 
 
 @dataclass(frozen=True)
@@ -99,9 +100,14 @@ class NewtonOptions(SolverOptions):
 
 
 #: "auto" takes AMG-preconditioned CG from this many elements on, by the direct
-#: solver it would otherwise use and the dimension (benchmarks/scale: the crossover
-#: of Newton's time to KKT 1e-8, direct against AMG, on the 3D sphere)
-AMG_FROM_ELEMENTS = {"pardiso": {2: 1_000_000, 3: 150_000}, "splu": {2: 400_000, 3: 40_000}}
+#: solver it would otherwise use and the dimension. Measured (benchmarks/scale, the
+#: 3D sphere, Newton to KKT 1e-8, CPU seconds): AMG against PARDISO 0.7 / 1.4 s at
+#: 12k tetrahedra, 1.2 / 2.7 at 24k, 3.5 / 8.6 at 53k, 10.5 / 30 at 118k, 36 / 184
+#: at 375k; AMG wins from the smallest size measured, so below 20k, where both take
+#: about a second, the direct path (exact, the reference) is kept. SuperLU is slower
+#: than PARDISO (41 s for one factorisation at 111k). 2D: direct factorisations fill
+#: in little; the 2D figures are in benchmarks/scale/crossover.md.
+AMG_FROM_ELEMENTS = {"pardiso": {2: 400_000, 3: 20_000}, "splu": {2: 100_000, 3: 20_000}}
 
 
 # ----------------------------------------------------------------------------
@@ -365,8 +371,17 @@ def evaluate(disc: Discretization, cdofs: np.ndarray, y: np.ndarray, tangent: bo
     sigma, xi, dkappa = return_mapping(disc.material, disc.strain(u))
     r = disc.internal_force(sigma)
     grad = np.append(r, r[cdofs].sum() - disc.force)
-    st = State(y, u, U, sigma, xi, np.flatnonzero(dkappa > 0.0), None, grad, value_displacement_form(disc, u, U))
+    st = State(y, u, U, sigma, xi, np.flatnonzero(dkappa > 0.0), None, grad, energy(disc, sigma, xi, dkappa, U))
     return st.with_tangent(disc) if tangent else st
+
+
+def energy(disc: Discretization, sigma: np.ndarray, xi: np.ndarray, kappa: np.ndarray, U: float) -> float:
+    """f = (D)'s objective, :func:`~elastoplast.solution.value_displacement_form`,
+    from the return mapping already done at the point (one mapping per line-search
+    trial, not two): ``sum_T |T| (1/2 sigma A sigma + 1/2 xi^2 / H + sigma_y kappa) - F U``
+    (``xi = H kappa``, so ``xi^2 / H = H kappa^2``)."""
+    density = 0.5 * energy_density(disc, sigma, xi) + disc.material.yield_stress * kappa
+    return float(disc.volumes @ density) - disc.force * U
 
 
 def project(y: np.ndarray, cdofs: np.ndarray, lower: np.ndarray) -> np.ndarray:

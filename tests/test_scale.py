@@ -237,3 +237,15 @@ def test_conic_refuses_beyond_its_size(quarter, monkeypatch):
     assert f"{quarter.n_elements:,}" in err.value.message
     for method in ("newton", "uzawa", "uzawa-fast"):
         assert method in err.value.message
+
+
+def test_newton_energy_is_the_displacement_form(quarter):
+    """The line search's energy from one return mapping equals value(D) of solution.py."""
+    from elastoplast.material import return_mapping
+    from elastoplast.solution import value_displacement_form
+
+    nd, _ = nondimensionalize(quarter)
+    u = 3.0 * np.random.default_rng(4).standard_normal(nd.n_free)
+    sigma, xi, kappa = return_mapping(nd.material, nd.strain(u))
+    assert kappa.max() > 0 and kappa.min() == 0
+    assert newton.energy(nd, sigma, xi, kappa, 0.7) == pytest.approx(value_displacement_form(nd, u, 0.7), rel=1e-12)

@@ -138,7 +138,7 @@ def run_case(n: int, kind: str, dim: int, store: Path) -> dict:
         if method == "newton":
             opts["linear_solver"] = path
         elif method.startswith("uzawa"):
-            opts["factorization"] = "amg" if path == "amg" else "auto"
+            opts["factorization"] = "amg" if path == "amg" else "pypardiso"  # the direct path at every size
         sol = ep.solve(disc, method, tol=TOL, **opts) if method != "conic" else ep.solve(disc, "conic")
         rec.update(status=sol.status.value, iterations=sol.iterations, U=sol.U, kkt_worst=sol.kkt.worst,
                    message=sol.message, n_plastic=int(sol.plastic.sum()), n_active=int(sol.active.sum()),

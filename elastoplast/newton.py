@@ -105,9 +105,10 @@ class NewtonOptions(SolverOptions):
 #: 12k tetrahedra, 1.2 / 2.7 at 24k, 3.5 / 8.6 at 53k, 10.5 / 30 at 118k, 36 / 184
 #: at 375k; AMG wins from the smallest size measured, so below 20k, where both take
 #: about a second, the direct path (exact, the reference) is kept. SuperLU is slower
-#: than PARDISO (41 s for one factorisation at 111k). 2D: direct factorisations fill
-#: in little; the 2D figures are in benchmarks/scale/crossover.md.
-AMG_FROM_ELEMENTS = {"pardiso": {2: 400_000, 3: 20_000}, "splu": {2: 100_000, 3: 20_000}}
+#: than PARDISO (41 s for one factorisation at 111k). 2D (cylinder_2d, benchmarks/scale
+#: README.md): PARDISO 2.2 / AMG 5.1 s at 25.6k triangles, 7.1 / 42.9 s at 102k: direct
+#: factorisations fill in little in 2D, so "auto" stays direct there at any size here.
+AMG_FROM_ELEMENTS = {"pardiso": {2: 10_000_000, 3: 20_000}, "splu": {2: 10_000_000, 3: 20_000}}
 
 
 # ----------------------------------------------------------------------------

@@ -478,8 +478,9 @@ ACTIVE_SET_MAX_ITER = 50
 #: by dimension. Measured (benchmarks/scale, the 3D sphere, Uzawa to KKT 1e-8, CPU
 #: seconds, direct / AMG): 2.7 / 3.4 at 24k tetrahedra, 8.6 / 8.7 at 53k, 27 / 24 at
 #: 118k, with 0.50 / 0.27 GB at 53k and 1.46 / 0.48 GB at 118k (Z = G^{-1} N^T is
-#: dense). 2D: benchmarks/scale/crossover.md.
-AMG_FROM_ELEMENTS = {2: 400_000, 3: 50_000}
+#: dense). 2D (cylinder_2d): direct 5.8 / AMG 13.4 s at 25.6k triangles, direct
+#: 24.4 s at 102k (benchmarks/scale/README.md): "auto" stays direct in 2D.
+AMG_FROM_ELEMENTS = {2: 10_000_000, 3: 50_000}
 
 
 def iterative_metric(disc: Discretization, method: str) -> bool:

@@ -59,16 +59,7 @@ from .iteration import Monitor
 from .material import Material, n_components, return_mapping
 from .options import MAX_ITER_CEILING, SolverOptions, option
 from .solution import Solution
-from .uzawa import (
-    FACTORIZATIONS,
-    ContactOperators,
-    Solve,
-    contact_operators,
-    factorize_metric,
-    metric_matrix,
-    project_contact,
-    project_stresses,
-)
+from .uzawa import FACTORIZATIONS, iterative_context, metric_projection, project_stresses, projection_note
 
 #: step as a share of FISTA's bound 1 / lambda_max(C)
 RHO_SHARE = 0.99
@@ -89,7 +80,10 @@ class FastOptions(SolverOptions):
     max_iter: int = option(5000, int, "iteration limit", lo=1, hi=MAX_ITER_CEILING)
     check_every: int = option(5, int, "iterations between certificate checks", lo=1, hi=MAX_ITER_CEILING)
     restart: bool = option(True, bool, "adaptive restart of the momentum (FISTA)")
-    factorization: str = option("auto", str, "sparse factorisation of the metric", choices=("auto", *FACTORIZATIONS))
+    factorization: str = option("auto", str, "sparse factorisation of the metric, or amg (iterative)",
+                                choices=("auto", *FACTORIZATIONS, "amg"))
+    inner_rtol: float = option(1e-2, float, "amg: relative residual of each face solve of step (ii)",
+                               lo=1e-14, hi=1e-1)
     variant: str = option("fista", str, "the accelerated method", choices=("fista", "alg2"))
     splitting: str = option("stiffness", str, "ALG2 only: the metric M of the penalty (M = C or I)",
                             choices=("stiffness", "identity"))
@@ -172,27 +166,29 @@ def prox_energy(material: Material, z: np.ndarray, r: float, splitting: str = "i
 
 @dataclass(frozen=True)
 class ALG2Step:
-    """What one ALG2 iteration needs: the factor of ``G_M = sum_T |T| B_T^T M B_T``,
-    the contact operators of that metric, M and its inverse and the penalty r."""
+    """What one ALG2 iteration needs: the contact projection in the metric
+    ``G_M = sum_T |T| B_T^T M B_T`` (:func:`~elastoplast.uzawa.metric_projection`),
+    M and its inverse and the penalty r."""
 
-    solve: Solve
-    ops: ContactOperators
+    project: object
     M: np.ndarray
     M_inv: np.ndarray
     r: float
     splitting: str
 
 
-def alg2_setup(nd, r: float, splitting: str, factorization: str = "auto") -> ALG2Step:
-    """Factor ``G_M`` once (M = I: Uzawa's metric G; M = C: the elastic stiffness K)."""
+def alg2_setup(nd, r: float, splitting: str, factorization: str = "auto", length: float = 1.0,
+               inner_rtol: float = 1e-6) -> ALG2Step:
+    """Factor ``G_M`` once, or set up its iterative solves (M = I: Uzawa's
+    metric G; M = C: the elastic stiffness K); ``length`` is the unit of the
+    scaled ``nd`` (:func:`~elastoplast.linalg.block_layout`)."""
     M = splitting_metric(nd.material, nd.dim, splitting)
-    solve = factorize_metric(nd.weighted_gram(M).tocsc(), factorization)
-    return ALG2Step(solve=solve, ops=contact_operators(nd.N, solve), M=M, M_inv=np.linalg.inv(M), r=r,
-                    splitting=splitting)
+    return ALG2Step(project=metric_projection(nd, length, M, factorization, None, inner_rtol), M=M,
+                    M_inv=np.linalg.inv(M), r=r, splitting=splitting)
 
 
 def alg2_displacements(nd, step: ALG2Step, q: np.ndarray, sigma: np.ndarray, V: float,
-                       lam: np.ndarray | None) -> tuple[np.ndarray, float, np.ndarray]:
+                       lam: np.ndarray | None, v: np.ndarray | None = None) -> tuple[np.ndarray, float, np.ndarray]:
     """ALG2's step (1): ``(v, V)`` minimises ``r/2 sum |T| |eps(v) - q + M^{-1} sigma / r|_M^2 - F V``
     over K_h, plus the proximal term ``r w / 2 (V - V^n)^2`` (w: the weight of
     :func:`~elastoplast.uzawa.contact_operators`).
@@ -205,11 +201,13 @@ def alg2_displacements(nd, step: ALG2Step, q: np.ndarray, sigma: np.ndarray, V: 
     alone (``V = min(N v + psi)``, a QP with the equality ``sum lam = F``);
     the small proximal term (w is a tenth of the contact compliance) keeps the
     bound-constrained QP of Uzawa and makes this the semi-proximal ALG2, whose
-    fixed points are those of ALG2. The contact forces are ``r lam``.
+    fixed points are those of ALG2. The contact forces are ``r lam``. ``v``,
+    the last iterate, is where an iterative projection starts (its face solves
+    are then for the change, which vanishes as ALG2 converges).
     """
     b = nd.internal_force(step.r * (q @ step.M) - sigma)
-    return project_contact(np.zeros(nd.n_free), V, -b, 1.0 / step.r, nd.force, nd.N, nd.psi, step.solve,
-                           step.ops, lam)
+    return step.project(np.zeros(nd.n_free), V, -b, 1.0 / step.r, nd.force, nd.N, nd.psi, lam,
+                        start=None if v is None else (v, V))
 
 
 def solve_uzawa_fast(disc, options: FastOptions = FastOptions()) -> Solution:
@@ -219,10 +217,9 @@ def solve_uzawa_fast(disc, options: FastOptions = FastOptions()) -> Solution:
     nd, units = nondimensionalize(disc)
     monitor = Monitor("uzawa-fast", disc, nd, units, options, t_start=t_start)
     rho = RHO_SHARE / nd.material.max_stiffness_eigenvalue()
-    solve = factorize_metric(metric_matrix(nd), options.factorization)
-    ops = contact_operators(nd.N, solve)
+    proj = metric_projection(nd, units.length, np.eye(nd.k), options.factorization, None, options.inner_rtol)
     zero = np.zeros(nd.n_free)
-    x, X, lam = project_contact(zero, 0.0, zero, 0.0, nd.force, nd.N, nd.psi, solve, ops)
+    x, X, lam = proj(zero, 0.0, zero, 0.0, nd.force, nd.N, nd.psi)
     x_old, X_old, t = x.copy(), X, 1.0
     timings["setup"] = time.perf_counter() - t_start
 
@@ -240,16 +237,15 @@ def solve_uzawa_fast(disc, options: FastOptions = FastOptions()) -> Solution:
         beta = (t - 1.0) / t_new
         y, Y = x + beta * (x - x_old), X + beta * (X - X_old)
         s_y, _ = project_stresses(nd.material, nd.strain(y))  # step (i) at y
-        x_new, X_new, lam = project_contact(y, Y, nd.internal_force(s_y), rho, nd.force, nd.N, nd.psi,
-                                            solve, ops, lam)  # step (ii) from y
-        if options.restart and metric_inner(nd, y - x_new, x_new - x, Y - X_new, X_new - X, ops.weight) > 0.0:
+        x_new, X_new, lam = proj(y, Y, nd.internal_force(s_y), rho, nd.force, nd.N, nd.psi, lam)  # step (ii) from y
+        if options.restart and metric_inner(nd, y - x_new, x_new - x, Y - X_new, X_new - X, proj.weight) > 0.0:
             t_new = 1.0
             restarts += 1
         x_old, X_old, x, X, t = x, X, x_new, X_new, t_new
         timings["iterations"] += time.perf_counter() - t0
         n += 1
     return monitor.solution(verdict, sigma, xi, x, X, iterations=n, timings=timings,
-                            note=f"FISTA, rho = {RHO_SHARE:g}/lambda_max(C), {restarts} restarts")
+                            note=f"FISTA, rho = {RHO_SHARE:g}/lambda_max(C), {restarts} restarts{projection_note(proj)}")
 
 
 def solve_alg2(disc, options: FastOptions = FastOptions()) -> Solution:
@@ -265,9 +261,9 @@ def solve_alg2(disc, options: FastOptions = FastOptions()) -> Solution:
     nd, units = nondimensionalize(disc)
     monitor = Monitor("uzawa-fast", disc, nd, units, options, t_start=t_start)
     r = alg2_penalty(nd.material, options)
-    step = alg2_setup(nd, r, options.splitting, options.factorization)
+    step = alg2_setup(nd, r, options.splitting, options.factorization, units.length, options.inner_rtol)
     zero = np.zeros(nd.n_free)
-    v, V, lam = project_contact(zero, 0.0, zero, 0.0, nd.force, nd.N, nd.psi, step.solve, step.ops)
+    v, V, lam = step.project(zero, 0.0, zero, 0.0, nd.force, nd.N, nd.psi)
     q = nd.strain(v)
     sigma, xi = project_stresses(nd.material, q)
     timings["setup"] = time.perf_counter() - t_start
@@ -282,19 +278,21 @@ def solve_alg2(disc, options: FastOptions = FastOptions()) -> Solution:
             if verdict is not None:
                 break
         t0 = time.perf_counter()
-        v, V, lam = alg2_displacements(nd, step, q, sigma, V, lam)  # step (1)
+        v, V, lam = alg2_displacements(nd, step, q, sigma, V, lam, v)  # step (1)
         eps = nd.strain(v)
         q, sigma, xi = prox_energy(nd.material, eps + (sigma @ step.M_inv) / r, r, options.splitting,
                                    step.M_inv)  # steps (2) and (3)
         timings["iterations"] += time.perf_counter() - t0
         n += 1
     return monitor.solution(verdict, s_c, x_c, v, V, iterations=n, timings=timings,
-                            note=f"ALG2, {options.splitting} splitting, r = {r:g} in units of E")
+                            note=f"ALG2, {options.splitting} splitting, r = {r:g} in units of E"
+                                 f"{projection_note(step.project)}")
 
 
 def solve_accelerated(disc, options: FastOptions = FastOptions()) -> Solution:
     """The ``"uzawa-fast"`` method: FISTA (default) or ALG2 as ``options.variant`` says."""
-    return VARIANTS[options.variant](disc, options)
+    with iterative_context(disc, options.factorization):
+        return VARIANTS[options.variant](disc, options)
 
 
 #: the two accelerated dual methods behind ``"uzawa-fast"``

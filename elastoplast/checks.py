@@ -162,10 +162,9 @@ def available_memory() -> tuple[int | None, str]:
     return min(found)
 
 
-# Bytes of the mesh and discretisation build, counted from the arrays alive at its peak
-# (strain_operator), see discretization_bytes.
-_STRAIN_TERMS = {2: 4, 3: 9}  # (component, derivative) terms in the Mandel rows of eps(u)
-_ALLOCATOR_MARGIN = 1.15
+# Bytes per element of the mesh and discretisation build at its peak (measured, see
+# discretization_bytes)
+_BUILD_BYTES_PER_ELEMENT = {2: 770, 3: 1650}
 # meshio's peak while reading, per byte of file, by suffix (measured, see mesh_read_bytes)
 MESH_READ_FACTORS = {".msh": 8, ".vtk": 4, ".vtu": 16}
 MESH_READ_DEFAULT_FACTOR = 16
@@ -176,28 +175,20 @@ MAX_ELEMENTS = 2**40
 def discretization_bytes(dim: int, n_nodes: int, n_elements: int, n_facets: int = 0) -> int:
     """Estimated peak memory (bytes) of building a mesh and its :class:`Discretization`.
 
-    The peak is in ``strain_operator``: B has ``nnz = t (d+1) n_el`` entries (``t`` = 4
-    in 2D, 9 in 3D: the (component, derivative) terms of the Mandel strain rows), and
-    while it is built the per-term pieces and their concatenation (row and column
-    indices int64, values float64: 2 x 24 bytes per entry), the COO indices cast to
-    int32 (8) and the CSR matrix (12; 16 with int64 indices beyond 2**31 entries) are
-    alive together: 68 bytes per entry. Beside them: cells 8(d+1), gradients 8d(d+1)
-    and volumes 8 bytes per element, points 8d per node, facet groups 8d per facet.
-    The count is multiplied by 1.15 for the allocator.
-
-    Measured (``benchmarks/memory``: peak RSS increase of ``problem_from_dict`` +
-    ``discretize`` on graded rectangles and boxes, each in a fresh process): measured /
-    estimate = 0.951, 0.929, 0.919 in 2D (40k, 160k, 640k triangles) and 0.916, 0.892,
-    0.881 in 3D (41k, 192k, 786k tetrahedra); ``tests/test_inputs.py`` checks the
-    estimate against tracemalloc's peak on every run.
-    The solvers need several times more than this; it is a floor, not a budget.
+    Since B is written directly as CSR with 32-bit indices, in chunks of elements
+    (:func:`~elastoplast.discretize.free_strain_operator`), no array of the build
+    grows faster than the element count, and the peak is a constant per element
+    (:data:`_BUILD_BYTES_PER_ELEMENT`) plus the points and facet groups (8d bytes
+    each). The constants are the largest measured: tracemalloc's peak of
+    ``problem_from_dict`` + ``discretize`` on the shipped graded rectangles and boxes
+    was 754, 751 and 575 bytes per triangle (3,600, 57,600 and 230,400 triangles)
+    and 1,528, 1,612 and 1,223 bytes per tetrahedron (5,184, 41,472 and 192,000),
+    falling as the fixed-size chunks weigh less; ``tests/test_inputs.py`` checks the
+    estimate against tracemalloc's peak on every run. The solvers need several times
+    more than this; it is a floor, not a budget.
     """
     d = int(dim)
-    nnz = _STRAIN_TERMS[d] * (d + 1) * int(n_elements)
-    per_entry = 68 if nnz < 2**31 else 72
-    per_element = 8 * (d + 1) + 8 * d * (d + 1) + 8
-    counted = per_entry * nnz + per_element * int(n_elements) + 8 * d * (int(n_nodes) + int(n_facets))
-    return int(_ALLOCATOR_MARGIN * counted)
+    return int(_BUILD_BYTES_PER_ELEMENT[d] * int(n_elements) + 8 * d * (int(n_nodes) + int(n_facets)))
 
 
 def mesh_read_bytes(path: Path, size: int) -> int:

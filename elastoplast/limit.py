@@ -47,7 +47,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .discretize import Discretization, _element_geometry, strain_operator
+from .discretize import Discretization, _element_geometry, free_strain_operator
 from .equilibrium import LimitLowerBound, LowerBoundOptions, static_limit_load
 from .errors import InputError
 from .options import SolverOptions, option
@@ -159,7 +159,7 @@ def _strain_at_points(n_nodes: int, nodes: np.ndarray, grads: np.ndarray) -> sp.
     """Mandel strains at points ``(n_pts * k, n_nodes * d)`` from the nodes
     ``(n_pts, nb)`` and basis gradients ``(n_pts, nb, d)`` at each point.
 
-    :func:`~elastoplast.discretize.strain_operator` builds the same rows for d + 1
+    :func:`~elastoplast.discretize.free_strain_operator` (every dof free) builds the same rows for d + 1
     basis functions per row block; the nb functions are fed to it d + 1 at a time
     (padded with zero gradients) and the blocks summed.
     """
@@ -168,8 +168,10 @@ def _strain_at_points(n_nodes: int, nodes: np.ndarray, grads: np.ndarray) -> sp.
     nodes = np.concatenate([nodes, np.zeros((n_pts, pad), dtype=nodes.dtype)], axis=1)
     grads = np.concatenate([grads, np.zeros((n_pts, pad, d))], axis=1)
     blank = np.zeros((n_nodes, d))
-    B = sum(strain_operator(Mesh(points=blank, cells=nodes[:, c:c + d + 1]), grads[:, c:c + d + 1])
+    every = np.arange(n_nodes * d)
+    B = sum(free_strain_operator(Mesh(points=blank, cells=nodes[:, c:c + d + 1]), grads[:, c:c + d + 1], every)
             for c in range(0, nb + pad, d + 1))
+    B.sum_duplicates()
     B.eliminate_zeros()
     return B.tocsr()
 

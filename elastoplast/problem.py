@@ -130,7 +130,7 @@ MAX_PSI_OVER_SPAN = 1e6
 
 
 def _check_psi(psi: np.ndarray, xp: np.ndarray, what: str, field: str, centre=None) -> np.ndarray:
-    """The obstacle at the contact nodes must be finite, >= 0 (MATH.md section 1: the
+    """The obstacle at the contact nodes must be finite, >= 0 (docs/math.md: the
     rigid body lies below x_d = 0 and touches the body where psi = 0) and not steeper
     than ``MAX_PSI_OVER_SPAN`` times the zone. A psi that does not reach 0 on the zone
     only shifts U by the gap, which is said in a warning: for a shape with a ``centre``

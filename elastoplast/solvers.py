@@ -56,8 +56,12 @@ DEFAULT_METHOD = "conic"
 
 #: the conic methods factor the KKT matrix of an interior point; beyond these sizes
 #: (elements by dimension) they cannot finish on a machine like the one the package is
-#: developed on (2 cores, 24 GB): measured 64 s and 0.9 GB at 52,728 tetrahedra
-#: (benchmarks/uzawa), growing faster than linearly
+#: developed on (2 cores, 24 GB, shared). Measured in benchmarks/scale (REPORT.md,
+#: "Conic reference"): 3D 10 s, 34 s, 99 s wall and 0.23, 0.42, 0.90 GB at 12k, 24k,
+#: 53k tetrahedra, time ~ n^1.56 and memory ~ n^1.13, extrapolated to 10 minutes at
+#: about 167k and to 6 GB at about 300k; 2D (cylinder_2d) 1.6 s and 11 s at 6.4k
+#: and 25.6k triangles, ~ n^1.36, 10 minutes at about 500k. The limits keep a margin
+#: below those extrapolations; beyond them newton and uzawa run on the iterative path.
 CONIC_MAX_ELEMENTS = {2: 400_000, 3: 150_000}
 
 
@@ -81,7 +85,8 @@ def check_solvable(disc: Discretization, method: str, options: SolverOptions | N
     if method.startswith("conic") and disc.n_elements > limit:
         fast = [m for m in METHODS if not m.startswith("conic")]
         raise InputError("method", f"{disc.n_elements:,} elements is beyond what the conic reference can finish "
-                                   f"here (at most {limit:,} in {disc.dim}D); use one of {fast}")
+                                   f"here (at most {limit:,} in {disc.dim}D, measured: benchmarks/scale); "
+                                   f"use one of {fast}")
     m = get_method(method)
     if options is not None and m.check is not None:
         m.check(disc, options)

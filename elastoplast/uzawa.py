@@ -9,6 +9,9 @@ Starting from ``(u^0, U^0)`` in K_h, iteration n does
   over K_h, a projected gradient step in the metric ``G = sum_T |T| B_T^T B_T``
   (plus 1 for V). G is factored once (:func:`factorize_metric`); the
   projection is a small QP in the contact multipliers (:func:`solve_contact_qp`).
+  On large meshes (:class:`IterativeProjection`) G is never factored: the
+  projection is solved in the primal variables by an active-set method whose
+  face systems go to AMG-preconditioned CG.
 
 The iteration stops on the KKT residuals of the certificate (docs/certificate.md)
 evaluated at the candidate ``(R(eps(u^n)), u^n, U^n)``, never on the step length.
@@ -20,6 +23,7 @@ user's units by :func:`~elastoplast.solution.make_solution`.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
@@ -158,7 +162,11 @@ class UzawaOptions(SolverOptions):
     certificate against one iteration so that checking costs at most about a
     quarter of the run. ``initial``: warm start from a previous solution of
     the same discretisation (any force). ``factorization``: a key of
-    :data:`FACTORIZATIONS` or ``"auto"``. ``rigid_weight``: see
+    :data:`FACTORIZATIONS`, ``"amg"`` (step (ii) without factorisation:
+    :class:`IterativeProjection`) or ``"auto"`` (AMG from
+    :data:`AMG_FROM_ELEMENTS` elements on). ``inner_rtol`` (AMG only): the
+    relative residual of each face solve of step (ii), relative to a
+    right-hand side that vanishes at the fixed point. ``rigid_weight``: see
     :func:`contact_operators`.
     """
 
@@ -168,8 +176,10 @@ class UzawaOptions(SolverOptions):
     check_every: int | None = option(None, int, "iterations between certificate checks (none: automatic)", lo=1,
                                      hi=MAX_ITER_CEILING, none=True)
     initial: Any = option(None, object, "warm start: a Solution of the same discretisation", none=True, persist=False)
-    factorization: str = option("auto", str, "sparse factorisation of the metric G",
-                                choices=("auto", *FACTORIZATIONS))
+    factorization: str = option("auto", str, "sparse factorisation of the metric G, or amg (iterative)",
+                                choices=("auto", *FACTORIZATIONS, "amg"))
+    inner_rtol: float = option(1e-2, float, "amg: relative residual of each face solve of step (ii)",
+                               lo=1e-14, hi=1e-1)
     #: weight w of the rigid body's displacement in the metric ``|eps(v)|^2 + w V^2``,
     #: in the problem's units (length^(d-2)); None: automatic (:func:`contact_operators`);
     #: 1.0 is the paper's literal metric
@@ -183,7 +193,7 @@ class UzawaOptions(SolverOptions):
 
 def factorize_metric(G: sp.spmatrix, method: str = "auto") -> Solve:
     """Factor G once; returns ``solve(b) = G^{-1} b`` (b of shape (n,) or (n, m))."""
-    if method == "auto":
+    if method in ("auto", "amg"):  # "amg" never factors: a direct solve where one is asked for
         for name in AUTO_ORDER["large" if G.nnz >= AUTO_LARGE_NNZ else "small"]:
             try:
                 return FACTORIZATIONS[name](G)
@@ -335,6 +345,168 @@ def project_contact(
     return v_star + ops.Z[:, on] @ lam[on], float(U + (rho * force - lam.sum()) / w), lam
 
 
+class DirectProjection:
+    """Step (ii) with G factored and ``Z = G^{-1} N^T`` formed
+    (:func:`project_contact`): exact, for small problems and as the reference."""
+
+    backend = "direct"
+
+    def __init__(self, solve: Solve, ops: ContactOperators):
+        self.solve, self.ops = solve, ops
+
+    @property
+    def weight(self) -> float:
+        return self.ops.weight
+
+    def __call__(self, u, U, r, rho, force, N, psi, lam0=None, start=None):
+        return project_contact(u, U, r, rho, force, N, psi, self.solve, self.ops, lam0)
+
+
+class IterativeProjection:
+    """Step (ii) without ``Z``: the primal projection QP solved by a primal-dual
+    active set method whose face systems are solved by AMG-preconditioned CG.
+
+    In the variables ``y = (v with w_i = v_{i,d} - V at the contact dofs, V)``
+    the projection is ``min 1/2 d^T H d + g^T d`` over steps ``d`` with
+    ``w_i + d_i >= -psi_i``, where ``H = T^T diag(G, weight) T``
+    (:class:`~elastoplast.linalg.FaceSystems`) and ``g = T^T (rho r, -rho F)``.
+    The active set ``W`` (Hintermueller, Ito & Kunisch's primal-dual active set
+    strategy, warm-started from the last projection) fixes ``w_i = -psi_i`` on
+    ``W``; the face system gives ``d``; the multipliers are ``mu = (H d + g)_c``.
+    It stops when no inactive bound is violated and no multiplier on ``W`` is
+    negative: the KKT conditions of the QP, up to the CG residual ``rtol``
+    (relative to the right-hand side, which vanishes at Uzawa's fixed point,
+    so the error of each step shrinks with the step). ``mu`` are the contact
+    multipliers ``lam`` of :func:`project_contact`. Each Uzawa step costs one
+    face solve once the contact set has settled.
+    """
+
+    backend = "amg"
+
+    def __init__(self, nd: Discretization, length: float, M: np.ndarray, weight: float | None = None,
+                 rtol: float = 1e-6, reuse: bool = True):
+        from .linalg import FaceSystems, assemble, block_layout, contact_dofs
+
+        lay = block_layout(nd, length)
+        self.cdofs = contact_dofs(nd)
+        self.faces = FaceSystems(lay, nd.free, self.cdofs, assemble(lay, M), 0.0, reuse, RECYCLE)
+        if weight is None:
+            weight = 1.0 / (RIGID_WEIGHT_FACTOR * max(self._trace_estimate(nd), np.finfo(float).tiny))
+        if not (np.isfinite(weight) and weight > 0):
+            raise InputError("rigid_weight", f"must be a number > 0, got {weight!r}")
+        self.faces.weight = float(weight)
+        self.faces.set_matrix(self.faces.data)
+        self.rtol = rtol
+        self.active = np.zeros(nd.n_contact, dtype=bool)
+        self.cg_iterations = 0
+        self.active_set_iterations = 0
+
+    @property
+    def weight(self) -> float:
+        return self.faces.weight
+
+    def _trace_estimate(self, nd: Discretization) -> float:
+        """``trace(N G^{-1} N^T)`` from ``(G^{-1})_ii`` at up to
+        :data:`TRACE_SAMPLES` contact nodes spread over their numbering, times
+        ``n_contact / samples`` (the automatic weight only needs its order of
+        magnitude; the contact-node compliances differ by small factors)."""
+        n_c = nd.n_contact
+        picks = np.unique(np.linspace(0, n_c - 1, min(n_c, TRACE_SAMPLES)).round().astype(int))
+        total = 0.0
+        for i in picks:
+            e = np.zeros(nd.n_free)
+            e[self.cdofs[i]] = 1.0
+            total += self.faces.solve_plain(e, TRACE_RTOL)[self.cdofs[i]]
+        return total * n_c / picks.size
+
+    def __call__(self, u, U, r, rho, force, N, psi, lam0=None, start=None):
+        """The projection of :func:`project_contact` (same arguments and
+        results); ``start = (v0, V0)`` in K_h (the last answer, when the
+        centre ``u`` is not near it, as in ALG2) is where the search starts:
+        the face solves are then for the change from it."""
+        faces, cd = self.faces, self.cdofs
+        centre = np.append(u, U)
+        centre[cd] -= U
+        g = np.append(rho * r, rho * (r[cd].sum() - force))
+        if start is None:
+            y = centre
+        else:
+            y = np.append(start[0], start[1])
+            y[cd] -= start[1]
+            g = g + faces.matvec(y - centre)
+        lower = -psi
+        W = self.active.copy()
+        seen = set()
+        for _ in range(ACTIVE_SET_MAX_ITER):
+            fixed = np.zeros(y.size, dtype=bool)
+            fixed[cd[W]] = True
+            d_fixed = np.zeros(y.size)
+            d_fixed[cd[W]] = lower[W] - y[cd[W]]
+            rhs = -g - faces.matvec(d_fixed)
+            d, info = faces.solve(fixed, rhs, self.rtol)
+            d[fixed] = d_fixed[fixed]
+            self.cg_iterations += info["cg_iterations"]
+            self.active_set_iterations += 1
+            mu = (faces.matvec(d) + g)[cd]
+            w_new = y[cd] + d[cd]
+            violated = ~W & (w_new < lower)
+            negative = W & (mu < 0.0)
+            if not (violated.any() or negative.any()):
+                break
+            seen.add(W.tobytes())
+            W = (W & ~negative) | violated
+            if W.tobytes() in seen:  # a cycle: keep the last solution
+                break
+        self.active = W
+        y_new = y + d
+        y_new[cd] = np.maximum(y_new[cd], lower)  # rounding of the CG solution
+        U_new = float(y_new[-1])
+        u_new = y_new[:-1]
+        u_new[cd] += U_new
+        return u_new, U_new, np.where(W, np.maximum(mu, 0.0), 0.0)
+
+
+#: contact nodes whose ``(G^{-1})_ii`` estimate the trace for the automatic weight of V
+TRACE_SAMPLES = 4
+#: relative residual of those solves (the weight needs only its order of magnitude)
+TRACE_RTOL = 1e-2
+#: earlier face solutions from which each face solve of step (ii) starts (Galerkin)
+RECYCLE = 8
+#: active-set iterations of one iterative projection (it stops at a cycle too)
+ACTIVE_SET_MAX_ITER = 50
+#: "auto": the metric is solved by AMG-preconditioned CG from this many elements on,
+#: by dimension. Measured (benchmarks/scale, the 3D sphere, Uzawa to KKT 1e-8, CPU
+#: seconds, direct / AMG): 2.7 / 3.4 at 24k tetrahedra, 8.6 / 8.7 at 53k, 27 / 24 at
+#: 118k, with 0.50 / 0.27 GB at 53k and 1.46 / 0.48 GB at 118k (Z = G^{-1} N^T is
+#: dense). 2D (cylinder_2d): direct 5.8 / AMG 13.4 s at 25.6k triangles, direct
+#: 24.4 s at 102k (benchmarks/scale/README.md): "auto" stays direct in 2D.
+AMG_FROM_ELEMENTS = {2: 10_000_000, 3: 50_000}
+
+
+def iterative_metric(disc: Discretization, method: str) -> bool:
+    """Whether step (ii) goes the iterative way: ``"amg"``, or ``"auto"`` from
+    :data:`AMG_FROM_ELEMENTS` elements on."""
+    return method == "amg" or (method == "auto" and disc.n_elements >= AMG_FROM_ELEMENTS[disc.dim])
+
+
+def iterative_context(disc: Discretization, method: str):
+    """One BLAS thread on the iterative path (:func:`~elastoplast.linalg.one_blas_thread`), else nothing."""
+    from .linalg import one_blas_thread
+
+    return one_blas_thread() if iterative_metric(disc, method) else contextlib.nullcontext()
+
+
+def metric_projection(nd: Discretization, length: float, M: np.ndarray, method: str = "auto",
+                      weight: float | None = None, rtol: float = 1e-6):
+    """Step (ii) in the metric ``sum_T |T| B_T^T M B_T`` (+ ``weight`` for V):
+    :class:`IterativeProjection` when :func:`iterative_metric`, else
+    :class:`DirectProjection` with the factorisation ``method``."""
+    if iterative_metric(nd, method):
+        return IterativeProjection(nd, length, M, weight, rtol)
+    solve = factorize_metric(nd.weighted_gram(M).tocsc(), method)
+    return DirectProjection(solve, contact_operators(nd.N, solve, weight))
+
+
 # ----------------------------------------------------------------------------
 # the loop
 # ----------------------------------------------------------------------------
@@ -369,6 +541,11 @@ def solve_uzawa(disc: Discretization, options: UzawaOptions = UzawaOptions()) ->
     says stop, step (ii) gives ``u^{n+1}``. The answer is the last candidate,
     with its true residuals, whatever the status.
     """
+    with iterative_context(disc, options.factorization):
+        return _solve_uzawa(disc, options)
+
+
+def _solve_uzawa(disc: Discretization, options: UzawaOptions) -> Solution:
     rho = check_rho(default_rho(disc.material) if options.rho is None else options.rho, disc.material)
     t_start = time.perf_counter()
     timings = {"setup": 0.0, "stresses": 0.0, "contact": 0.0, "certificate": 0.0}
@@ -376,12 +553,11 @@ def solve_uzawa(disc: Discretization, options: UzawaOptions = UzawaOptions()) ->
     nd, units = nondimensionalize(disc)
     monitor = Monitor("uzawa", disc, nd, units, options, divergence_factor=options.divergence_factor, t_start=t_start)
     rho_nd = rho * units.E  # the step in the scaled units, where E = 1
-    solve = factorize_metric(metric_matrix(nd), options.factorization)
     weight = None if options.rigid_weight is None else options.rigid_weight / units.length ** (disc.dim - 2)
-    ops = contact_operators(nd.N, solve, weight)
+    proj = metric_projection(nd, units.length, np.eye(nd.k), options.factorization, weight, options.inner_rtol)
     u, U, lam = _initial_point(disc, nd, units, options, rho_nd)
     # the start must lie in K_h: project it (a step with rho = 0 is the pure projection)
-    u, U, _ = project_contact(u, U, np.zeros(nd.n_free), 0.0, nd.force, nd.N, nd.psi, solve, ops)
+    u, U, _ = proj(u, U, np.zeros(nd.n_free), 0.0, nd.force, nd.N, nd.psi)
     timings["setup"] = time.perf_counter() - t_start
 
     interval, n = options.check_every or 1, 0
@@ -399,14 +575,22 @@ def solve_uzawa(disc: Discretization, options: UzawaOptions = UzawaOptions()) ->
             if verdict is not None:
                 break
         t2 = time.perf_counter()
-        u, U, lam = project_contact(u, U, r, rho_nd, nd.force, nd.N, nd.psi, solve, ops, lam)  # step (ii)
+        u, U, lam = proj(u, U, r, rho_nd, nd.force, nd.N, nd.psi, lam)  # step (ii)
         t3 = time.perf_counter()
         timings["contact"] += t3 - t2
         if n == 0:
             interval = _check_interval(options, t_check, t3 - t0 - t_check)
         n += 1
     return monitor.solution(verdict, sigma, xi, u, U, iterations=n, timings=timings,
-                            note=f"rho = {rho:.6g}, bound {rho_bound(disc.material):.6g}")
+                            note=f"rho = {rho:.6g}, bound {rho_bound(disc.material):.6g}{projection_note(proj)}")
+
+
+def projection_note(proj) -> str:
+    """What the answer's message says about an iterative step (ii)."""
+    if proj.backend != "amg":
+        return ""
+    return (f"; step (ii) by AMG-CG: {proj.faces.setups} AMG set-up(s), {proj.active_set_iterations} face solves, "
+            f"{proj.cg_iterations} CG iterations")
 
 
 def load_sweep(disc: Discretization, forces: Sequence[float], options: UzawaOptions = UzawaOptions()) -> list[Solution]:

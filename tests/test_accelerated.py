@@ -100,7 +100,7 @@ def test_displacement_step_satisfies_its_optimality_conditions():
     res = nd.internal_force(sigma + r * (nd.strain(v) - q) @ step.M) - r * (nd.N.T @ lam)
     scale = np.linalg.norm(nd.internal_force(np.abs(sigma)))
     assert np.linalg.norm(res) <= 1e-10 * scale
-    assert r * step.ops.weight * (V - V0) == pytest.approx(nd.force - r * lam.sum(), rel=1e-9)
+    assert r * step.project.weight * (V - V0) == pytest.approx(nd.force - r * lam.sum(), rel=1e-9)
     g = gaps(nd, v, V)
     assert lam.min() >= 0 and g.min() >= -1e-12 * np.abs(g).max()
     assert np.abs(lam * g).max() <= 1e-12 * np.abs(lam).max() * np.abs(g).max()

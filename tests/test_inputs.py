@@ -248,8 +248,8 @@ def test_parse_bytes_and_available_memory(monkeypatch):
 @pytest.mark.parametrize("dim,divisions", [(2, [60, 30]), (3, [12, 12, 6])])
 def test_memory_estimate_matches_a_real_build(dim, divisions):
     """The estimate bounds the traced peak of building the mesh and its operators,
-    without overstating it more than 1.3 times (the model counts the arrays alive in
-    strain_operator; tracemalloc sees every NumPy allocation). If the build's memory
+    without overstating it more than 1.3 times (the model is the largest measured
+    peak per element; tracemalloc sees every NumPy allocation). If the build's memory
     changes, this fails and discretization_bytes must be recounted."""
     base = ep.problem.read_toml(Path(__file__).parents[1] / "problems" /
                                 ("cylinder_2d.toml" if dim == 2 else "sphere_block_3d.toml"))

@@ -1,0 +1,63 @@
+"""Side study: the 2D crossover of the direct and iterative paths (cylinder_2d, divisions [2m, m]).
+
+    python benchmarks/scale/crossover.py            # m = 80, 160, 320, 640 (25k .. 410k triangles)
+    python benchmarks/scale/crossover.py --quick    # m = 40, 80, into quick/
+
+The 3D crossover is read off the main run (run.py); this measures the same
+cases on the 2D plane-strain problem, where direct factorisations fill in far
+less. Each case runs in its own process (run.py's ``--case``); answers are
+compared with the direct Newton answer. Writes ``crossover.json`` and ``crossover.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from run import spawn  # noqa: E402
+
+KINDS = ["newton[pardiso]", "newton[amg]", "uzawa[direct]", "uzawa[amg]"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args()
+    from elastoplast.provenance import stamp, stamp_line
+
+    sizes = [40, 80] if args.quick else [80, 160, 320, 640]
+    out = HERE / "quick" if args.quick else HERE
+    out.mkdir(exist_ok=True)
+    records = []
+    with tempfile.TemporaryDirectory() as store:
+        for m in sizes:
+            for kind in KINDS:
+                rec = spawn(m, kind, 2, Path(store))
+                records.append(rec)
+                print(f"2D m={m} {kind}: {rec.get('n_elements')} el, {rec.get('wall_s', float('nan')):.1f} s wall, "
+                      f"{rec.get('cpu_s', float('nan')):.1f} s CPU, {rec.get('status')} {rec.get('error', '')}",
+                      flush=True)
+    res = {"stamp": stamp(), "records": records}
+    (out / "crossover.json").write_text(json.dumps(res, indent=1))
+    lines = [stamp_line(res["stamp"]), "", "# 2D crossover: direct against AMG (cylinder_2d, KKT <= 1e-8)", "",
+             "| triangles | case | wall s | CPU s | peak GB | iterations | status | dU vs ref | stress err vs ref |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in records:
+        if "error" in r:
+            lines.append(f"| | {r['kind']} | error: {r['error']} | | | | | | |")
+            continue
+        du = f"{r['dU_rel']:.1e}" if "dU_rel" in r else ""
+        se = f"{r['stress_error_energy']:.1e}" if "stress_error_energy" in r else ""
+        lines.append(f"| {r['n_elements']:,} | {r['kind']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {r['peak_gb']:.2f} "
+                     f"| {r['iterations']} | {r['status']} | {du} | {se} |")
+    (out / "crossover.md").write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()

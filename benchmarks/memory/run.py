@@ -2,7 +2,9 @@
 ``elastoplast.checks.discretization_bytes``, and meshio's peak against
 ``mesh_read_bytes``.
 
-    python benchmarks/memory/run.py [--quick] [--out DIR]
+    python benchmarks/memory/run.py             # full run: results.json, REPORT.md in this folder
+    python benchmarks/memory/run.py --quick     # small cases, into quick/ (not committed)
+    python benchmarks/memory/run.py --report    # only REPORT.md again, from results.json
 
 Each case runs in a fresh process (``resource.getrusage`` peak RSS is per process);
 the figure is the peak over the RSS the process had after importing elastoplast.
@@ -138,32 +140,13 @@ def run_worker(*args: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out")
-    parser.add_argument("--worker", nargs="+")
-    args = parser.parse_args()
-    if args.worker:
-        kind, *rest = args.worker
-        print(json.dumps(worker_build(int(rest[0]), json.loads(rest[1])) if kind == "build"
-                         else worker_read(rest[0], rest[1] == "traced")))
-        return
-    from elastoplast.provenance import stamp, stamp_line
+TITLE = "Memory of the input stage: estimates against measured peaks"
 
-    level = "quick" if args.quick else "full"
-    out = Path(args.out) if args.out else (HERE / "quick" if args.quick else HERE)
-    out.mkdir(parents=True, exist_ok=True)
-    builds = [run_worker("build", str(dim), json.dumps(div)) for dim, div in BUILD[level]]
-    reads = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for dim, div in READ[level]:
-            for path in write_mesh_files(dim, div, Path(tmp)):
-                reads.append({"dim": dim, **measure_read(path)})
-    results = {"stamp": stamp(), "build": builds, "read": reads}
-    (out / "results.json").write_text(json.dumps(results, indent=1))
-    lines = [stamp_line(results["stamp"]), "",
-             "## Mesh + discretisation: peak RSS increase against discretization_bytes", "",
+
+def markdown(results: dict) -> str:
+    """The report's body: both tables of ``results``."""
+    builds, reads = results["build"], results["read"]
+    lines = ["## Mesh + discretisation: peak RSS increase against discretization_bytes", "",
              "| dim | divisions | elements | nodes | measured MiB | estimate MiB | measured / estimate |",
              "|---|---|---|---|---|---|---|"]
     lines += [f"| {b['dim']} | {b['divisions']} | {b['n_elements']} | {b['n_nodes']} | {b['measured_bytes'] / 2**20:.1f} "
@@ -172,8 +155,33 @@ def main() -> None:
               "| dim | file | size MiB | peak RSS / size | traced peak / size | factor |", "|---|---|---|---|---|---|"]
     lines += [f"| {r['dim']} | {r['file']} | {r['size_bytes'] / 2**20:.2f} | {r['rss_per_file_byte']:.2f} | "
               f"{r['traced_per_file_byte']:.2f} | {r['factor']} |" for r in reads]
-    (out / "REPORT.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+
+    parser = record_parser(__doc__)
+    parser.add_argument("--worker", nargs="+", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.worker:
+        kind, *rest = args.worker
+        print(json.dumps(worker_build(int(rest[0]), json.loads(rest[1])) if kind == "build"
+                         else worker_read(rest[0], rest[1] == "traced")))
+        return
+    out = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out, TITLE, markdown)
+        return
+    level = "quick" if args.quick else "full"
+    builds = [run_worker("build", str(dim), json.dumps(div)) for dim, div in BUILD[level]]
+    reads = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for dim, div in READ[level]:
+            for path in write_mesh_files(dim, div, Path(tmp)):
+                reads.append({"dim": dim, **measure_read(path)})
+    results = write_record(out, {"quick": args.quick, "build": builds, "read": reads}, TITLE, markdown)
+    print(markdown(results))
 
 
 if __name__ == "__main__":

@@ -82,10 +82,13 @@ def run_method(disc, method: str, **opts) -> tuple[dict, ep.Solution]:
     wall = time.perf_counter() - t0
     row = {"method": method, "status": sol.status.value, "time_s": wall, "iterations": sol.iterations,
            "kkt_worst": sol.kkt.worst, "U": sol.U, "n_active": int(sol.active.sum()),
-           "n_plastic": int(sol.plastic.sum()), "timings": sol.timings}
+           "n_plastic": int(sol.plastic.sum()), "timings": sol.timings, "message": sol.message}
     if method == "newton":
         row["history_kkt"] = [h["kkt_worst"] for h in sol.history if "kkt_worst" in h]
         row["factorizations"] = int(sum(bool(h.get("factorized")) for h in sol.history))
+        # the AMG-CG path (3D from newton.AMG_FROM_ELEMENTS) builds hierarchies instead
+        row["amg_setups"] = int(sum(bool(h.get("amg_setup")) for h in sol.history))
+        row["cg_iterations"] = int(sum(h.get("cg_iterations", 0) for h in sol.history))
     return row, sol
 
 
@@ -186,6 +189,8 @@ def markdown(results: dict) -> str:
             lines.append(f"| {r['method']} | {r['status']} | {r['time_s']:.2f} | {r['iterations']} | {r['kkt_worst']:.1e} | "
                          f"{r['U']:.8g} | {v.get('dU_rel', float('nan')):.1e} | {v.get('stress_err_energy', float('nan')):.1e} | "
                          f"{v.get('same_active', '-')} | {v.get('same_plastic', '-')} |")
+        notes = [f"{r['method']}: {r['message']}" for r in e["runs"] if r.get("message")]
+        lines += ["", "Paths taken: " + "; ".join(notes) + "."] if notes else []
         lines.append("")
     return "\n".join(lines)
 

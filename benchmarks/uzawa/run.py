@@ -81,6 +81,7 @@ def child(spec: dict) -> dict:
     np.savez(spec["store"], sigma=sol.sigma, xi=sol.xi, U=sol.U, active=sol.active, plastic=sol.plastic)
     return {
         "status": sol.status.value, "iterations": sol.iterations, "time_s": wall, "timings": sol.timings,
+        "message": sol.message,
         "kkt": sol.kkt.as_dict(), "kkt_worst": sol.kkt.worst, "duality_gap": sol.duality_gap, "U": sol.U,
         "n_elements": disc.n_elements, "n_free": disc.n_free, "n_contact": disc.n_contact,
         "n_plastic": int(sol.plastic.sum()), "n_active": int(sol.active.sum()),
@@ -195,7 +196,8 @@ def markdown(results: dict) -> str:
     for ref, uz in big:
         out += [f"**Key ratio** (issue 3 target: >= 5): 3D sphere, {uz['n_elements']} tetrahedra: conic "
                 f"{ref['time_s']:.1f} s (KKT {ref['kkt_worst']:.1e}), Uzawa {uz['time_s']:.1f} s (KKT {uz['kkt_worst']:.1e}, "
-                f"{uz['iterations']} iterations): conic / Uzawa = **{ref['time_s'] / uz['time_s']:.1f}**.", ""]
+                f"{uz['iterations']} iterations): conic / Uzawa = **{ref['time_s'] / uz['time_s']:.1f}**."
+                + (f" Uzawa's path: {uz['message']}." if uz.get("message") else ""), ""]
     out += ["## Sizes", "",
             "| problem | elements | contact nodes | conic s | conic it | conic KKT | conic MB | Uzawa s | Uzawa it "
             "| Uzawa KKT | Uzawa MB | conic/Uzawa time | err U | err stress | active diff | plastic diff | plastic el. |",

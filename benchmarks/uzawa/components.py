@@ -55,7 +55,12 @@ def measure(disc, name: str, repeats: int = 20) -> dict:
 
 
 def record_qps(disc) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
-    """The (S, g, warm start) of every contact QP of one Uzawa run."""
+    """The (S, g, warm start) of every contact QP of one Uzawa run.
+
+    The QP in S exists on the direct path only: from ``uzawa.AMG_FROM_ELEMENTS``
+    elements on, "auto" projects by a primal-dual active set on AMG-CG face solves
+    and forms no S. The run therefore factors G with SuperLU (always installed; the
+    QPs do not depend on the factorisation beyond round-off)."""
     seen = []
     exact = uz.solve_contact_qp
 
@@ -65,7 +70,7 @@ def record_qps(disc) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
 
     uz.solve_contact_qp = spy
     try:
-        uz.solve_uzawa(disc, uz.UzawaOptions(tol=1e-6))
+        uz.solve_uzawa(disc, uz.UzawaOptions(tol=1e-6, factorization="splu"))
     finally:
         uz.solve_contact_qp = exact
     return seen

@@ -167,23 +167,28 @@ class _Bounded:
     bounds: Bounds
 
 
-def _solve(disc: Discretization, options: AdaptOptions, start: Solution | None) -> Solution:
-    """The P1 solution by ``options.method``; Newton from ``start`` when given."""
+def _solve(disc: Discretization, options: AdaptOptions, start: Solution | None, required: bool = True) -> Solution | None:
+    """The P1 solution by ``options.method``; Newton from ``start`` when given (and
+    from zero again if that fails). Not converged: an ``InputError`` when
+    ``required``, else None."""
     from .solvers import check_solvable, method_options, solve
 
     values = {"tol": options.tol} if options.method != "conic" else {}
-    if start is None or options.method != "newton":
-        sol = solve(disc, options.method, **values)
-    else:
+    sol = None
+    if start is not None and options.method == "newton":
         from .newton import solve_newton
 
         opts = method_options("newton", values)
         check_solvable(disc, "newton", opts)
         sol = solve_newton(disc, opts, warm_start=start)
-    if not sol.converged:
+    if sol is None or not sol.converged:
+        sol = solve(disc, options.method, **values)
+    if sol.converged:
+        return sol
+    if required:
         raise InputError("adapt", f"the P1 solution on a mesh of {disc.n_elements} elements did not converge: "
                                   f"{sol.message}")
-    return sol
+    return None
 
 
 def _lower_options(options: AdaptOptions):
@@ -212,9 +217,10 @@ def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solu
     upper, cons = upper_bound(disc, sol), None
     cdisc = conservative_discretization(disc)
     if not np.array_equal(cdisc.psi, disc.psi):  # a flat obstacle needs no allowance: nothing to solve again
-        cons = _solve(cdisc, options, None if start is None else start[1])
-        other = upper_bound(disc, cons)
-        if other.Pi < upper.Pi and (other.certified or not upper.certified):
+        # only a candidate: if its solve fails, the problem's own solution bounds alone
+        cons = _solve(cdisc, options, None if start is None else start[1], required=False)
+        other = None if cons is None else upper_bound(disc, cons)
+        if other is not None and other.Pi < upper.Pi and (other.certified or not upper.certified):
             upper = other
     t1 = time.perf_counter()
     lower = solve_lower_bound(disc, _lower_options(options))

@@ -71,6 +71,19 @@ def test_warm_start_gives_the_same_meshes_and_bounds(coarse_cylinder):
         assert a.U == pytest.approx(b.U, rel=1e-6)
 
 
+def test_a_failed_conservative_solve_leaves_the_problems_own_bound(coarse_cylinder, monkeypatch):
+    """The conservative variant's solution is only a candidate for a smaller upper
+    bound: without it the bound is that of the problem's own solution."""
+    from elastoplast.bounds import upper_bound
+
+    solve = ad._solve
+    monkeypatch.setattr(ad, "_solve", lambda disc, options, start, required=True:
+                        solve(disc, options, start, required) if required else None)
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", max_iter=2))
+    assert all(s.certified for s in run.steps)
+    assert run.final.energy_upper == upper_bound(run.disc, run.solution).Pi
+
+
 def test_every_bracket_holds_on_every_mesh(coarse_cylinder):
     """Each mesh's energy bracket and U bracket contain the same continuum values,
     so the brackets of all meshes intersect (docs/bounds.md, section 5: a lower

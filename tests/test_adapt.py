@@ -189,3 +189,21 @@ def test_indicator_pictures_2d_and_3d(tmp_path, coarse_cylinder):
     run3 = adapt(quarter, AdaptOptions(rtol=1e-6, bracket="never", max_iter=1))
     ad.plot_indicator(tmp_path / "b.png", run3.disc, run3.solution, run3.bounds)
     assert (tmp_path / "a.png").stat().st_size > 0 and (tmp_path / "b.png").stat().st_size > 0
+
+
+def test_command_time_limit_bounds_the_uniform_comparison_too(tmp_path, capsys):
+    """The adaptive run spends a tiny --time-limit on its first mesh (and its U
+    bracket); nothing is left for the uniform comparison, which is skipped."""
+    import json
+
+    from elastoplast.cli import main
+    from test_cli import write_toml
+
+    problem = write_toml(tmp_path / "p.toml", cylinder_dict(divisions=(10, 5)))
+    code = main(["adapt", str(problem), "--time-limit", "0.001", "--out", str(tmp_path / "a"), "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 1 and "uniform refinement skipped" in out
+    record = json.loads((tmp_path / "a" / "adapt.json").read_text())
+    assert record["uniform"] is None and len(record["adaptive"]) == 1
+    assert record["reason"].startswith("time_limit")
+    assert (tmp_path / "a" / "indicator.png").stat().st_size > 0

@@ -240,22 +240,15 @@ def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solu
 
 
 def with_bracket(done: _Bounded, options: AdaptOptions) -> _Bounded:
-    """``done`` with its U bracket: the lower bounds at ``F ∓ δ`` (two programs; no P1
-    solve) and :func:`~elastoplast.bounds.u_bracket`, δ by
-    :func:`~elastoplast.bounds.choose_delta` with the secant ``U / F`` for ``dU/dF``,
-    as :func:`~elastoplast.bounds.certified_bounds` does (δ sets how tight the
-    bracket is, never whether it holds)."""
-    from .bounds import choose_delta, u_bracket
-    from .equilibrium import solve_lower_bound
+    """``done`` with its U bracket (:func:`~elastoplast.bounds.u_bracket_of`: two more
+    lower bounds, at ``F ∓ δ``, and no P1 solve, as the ``bounds`` command does)."""
+    from .bounds import u_bracket_of
 
     t0 = time.perf_counter()
     disc, sol, b = done.disc, done.solution, done.bounds
-    F = disc.force
-    delta = choose_delta(F, b.energy_gap, sol.U / F if sol.U > 0 else 0.0)
-    side = {f: solve_lower_bound(disc.with_force(f), _lower_options(options)) for f in (F - delta, F + delta)}
-    lo, hi = u_bracket(disc, delta, lambda f: (b.energy_lower, b.energy_upper) if f == F else (side[f].lower, math.nan))
+    lo, hi, _, certified = u_bracket_of(disc, b, sol.U, _lower_options(options))
     seconds = time.perf_counter() - t0
-    row = replace(done.row, U_lower=lo, U_upper=hi, certified=done.row.certified and all(s.certified for s in side.values()),
+    row = replace(done.row, U_lower=lo, U_upper=hi, certified=done.row.certified and certified,
                   bracket_seconds=seconds, seconds=done.row.seconds + seconds)
     return replace(done, row=row)
 

@@ -78,7 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-elements", type=int, help="element budget (default: 2,000,000)")
     p.add_argument("--time-limit", type=float, help="time budget in seconds")
     p.add_argument("--method", help="solver of the P1 solutions (default: newton)")
-    p.add_argument("--bracket", choices=["every", "final", "never"], help="U bracket at every step (default), the last, or none")
+    p.add_argument("--bracket", choices=["every", "final", "never"],
+                   help="U bracket on the final mesh (default), at every step, or none")
     p.add_argument("--no-uniform", action="store_true", help="skip the uniform-refinement comparison")
     p.add_argument("--out", default="adapt", help="output folder (default: adapt)")
     p.add_argument("--quiet", action="store_true", help="no progress output")

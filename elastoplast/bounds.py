@@ -427,8 +427,12 @@ def best_upper_bound(disc: Discretization, solution, method: str = "conic", cons
     from .solvers import solve
 
     upper = upper_bound(disc, solution)
-    if conservative:
-        other = upper_bound(disc, solve(conservative_discretization(disc), method, **options))
+    safe = conservative_discretization(disc) if conservative else disc
+    if conservative and not np.array_equal(safe.psi, disc.psi):  # a flat obstacle needs no allowance
+        other_sol = solve(safe, method, **options)
+        if not other_sol.converged:  # the problem's own solution's bound stands
+            return upper
+        other = upper_bound(disc, other_sol)
         if other.Pi < upper.Pi and (other.certified or not upper.certified):
             upper = replace(other, message=f"{other.message}; from the solution with the conservative obstacle")
     return upper
@@ -528,7 +532,7 @@ class BoundsReport:
     lower: object = field(repr=False)
     U_lower: float = float("nan")
     U_upper: float = float("nan")
-    delta: float = float("nan")
+    delta: tuple[float, float] = (float("nan"), float("nan"))
     timings: dict = field(default_factory=dict)
 
     @property
@@ -545,7 +549,8 @@ class BoundsReport:
             "bounds_certified": self.certified,
             "U_lower": self.U_lower,
             "U_upper": self.U_upper,
-            "U_bracket_delta": self.delta,
+            "U_bracket_delta": self.delta[0],
+            "U_bracket_delta_above": self.delta[1],
             "upper_bound": {"penetration": self.upper.penetration, "shift": self.upper.shift, "lift": self.upper.lift,
                             "certified": self.upper.certified, "message": self.upper.message},
             "lower_bound": {"certified": self.lower.certified, "status": self.lower.status.value,
@@ -586,12 +591,27 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
     b = combine(upper, lower)
     if not bracket:
         return BoundsReport(bounds=b, upper=upper, lower=lower, timings=timings)
+    U_lo, U_hi, delta, ok = u_bracket_of(disc, b, sol.U, lower_options)  # delta: (below F, above F)
+    timings["bracket"] = time.perf_counter() - t2
+    return BoundsReport(bounds=b, upper=upper, lower=lower, U_lower=U_lo, U_upper=U_hi, delta=delta, timings=timings,
+                        bracket_certified=ok)
+
+
+def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
+                 lower_options=None) -> tuple[float, float, tuple[float, float], bool]:
+    """``(U_lower, U_upper, (delta, delta'), certified)``: the U bracket of :func:`u_bracket` from
+    the energy bracket ``b`` at F and two more lower bounds, at ``F - delta`` and
+    ``F + delta'`` (no P1 solve); see :func:`certified_bounds` for the choice of
+    delta and the shrinking of ``delta'``."""
+    from .equilibrium import LowerBoundOptions, solve_lower_bound
+
+    lower_options = lower_options or LowerBoundOptions()
     F = disc.force
     # the gap used to choose delta never counts as less than the round-off of the bounds
     # themselves, so that (round-off of J) / delta stays far below the bracket's width
     gap = max(b.energy_gap, GAP_FLOOR * abs(b.energy_upper))
-    delta = choose_delta(F, gap, sol.U / F if sol.U > 0 else 0.0)
-    lo_minus = solve_lower_bound(disc.with_force(F - delta), lower_options)
+    delta = choose_delta(F, gap, U_h / F if U_h > 0 else 0.0)
+    minus = solve_lower_bound(disc.with_force(F - delta), lower_options)
     # with H = 0, F + delta may lie above the mesh's static limit load (no admissible
     # field there): each side's secant holds for its own delta, so shrink that one
     plus, delta_plus = None, delta
@@ -603,12 +623,10 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
             if exc.field != "load.force":
                 raise
             delta_plus /= 4.0
-    timings["bracket"] = time.perf_counter() - t2
-    U_lo = (lo_minus.lower - b.energy_upper) / delta
+    U_lo = (minus.lower - b.energy_upper) / delta
     U_hi = (b.energy_upper - plus.lower) / delta_plus if plus is not None else float("inf")
-    sides = [lo_minus] + ([plus] if plus is not None else [])
-    return BoundsReport(bounds=b, upper=upper, lower=lower, U_lower=U_lo, U_upper=U_hi, delta=delta, timings=timings,
-                        bracket_certified=all(lb.certified for lb in sides) and plus is not None)
+    certified = minus.certified and plus is not None and plus.certified
+    return U_lo, U_hi, (delta, delta_plus), certified
 
 
 def element_indicators(disc: Discretization, bounds: Bounds) -> np.ndarray:

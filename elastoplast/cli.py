@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", help="problem TOML file with hardening = 0")
     p.add_argument("--out", default="limit", help="output folder (default: limit)")
     p.add_argument("--order", type=int, help="degree of the kinematic velocity field, 1 or 2 (default: 2)")
-    p.add_argument("--time-limit", type=float, help="Clarabel's wall-clock limit per program, seconds")
+    p.add_argument("--time-limit", type=float, help="wall-clock limit of each of the two programs, seconds")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
     p = sub.add_parser("adapt", help="refine where the certified gap is until the relative gap is at most --rtol")
@@ -78,7 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-elements", type=int, help="element budget (default: 2,000,000)")
     p.add_argument("--time-limit", type=float, help="time budget in seconds")
     p.add_argument("--method", help="solver of the P1 solutions (default: newton)")
-    p.add_argument("--bracket", choices=["every", "final", "never"], help="U bracket at every step (default), the last, or none")
+    p.add_argument("--bracket", choices=["every", "final", "never"],
+                   help="U bracket on the final mesh (default), at every step, or none")
     p.add_argument("--no-uniform", action="store_true", help="skip the uniform-refinement comparison")
     p.add_argument("--out", default="adapt", help="output folder (default: adapt)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -231,6 +232,7 @@ def _bounds(args: argparse.Namespace) -> int:
 
 
 def _limit(args: argparse.Namespace) -> int:
+    from .equilibrium import LowerBoundOptions
     from .limit import LimitOptions, limit_load
     from .output import json_text, staged_output
 
@@ -242,7 +244,7 @@ def _limit(args: argparse.Namespace) -> int:
     except InputError as exc:
         raise InputError(f"--{exc.field.replace('_', '-')}", exc.message) from None
     disc = _discretize(path, data, args.quiet, "limit load bracket (H = 0)")
-    bracket = limit_load(disc, options)
+    bracket = limit_load(disc, options, LowerBoundOptions(time_limit=options.time_limit))
     with staged_output(args.out, "--out") as tmp:
         from .provenance import stamp
 

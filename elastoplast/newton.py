@@ -656,8 +656,8 @@ def solve_newton(disc: Discretization, options: NewtonOptions = NewtonOptions(),
     if warm_start is not None:
         y = to_variables(disc.free_displacement(warm_start.u) / units.displacement, warm_start.U / units.displacement, cdofs)
         y = project(y, cdofs, lower)
-    else:
-        y = np.zeros(nd.n_free + 1)
+    else:  # u = 0, U = 0, projected: feasible also where the obstacle starts above the plane (psi < 0)
+        y = project(np.zeros(nd.n_free + 1), cdofs, lower)
     with one_blas_thread() if backend == "amg" else contextlib.nullcontext():
         hess = AMGHessian(nd, units, options, cdofs) if backend == "amg" else DirectHessian(nd, options, backend)
         timings["setup"] = time.perf_counter() - t_start

@@ -317,3 +317,19 @@ def test_tiny_force_is_solved_by_every_method(method):
     assert sol.converged and sol_ref.converged, (sol.message, sol_ref.message)
     assert not sol.plastic.any()
     assert sol.U / 1e-12 == pytest.approx(sol_ref.U / 1e-2, rel=1e-5)
+
+
+def test_newton_starts_feasible_when_the_obstacle_starts_above_the_plane():
+    """psi < 0 at a contact node (the conservative obstacle of the upper bound lowers psi
+    below 0 on a coarse ungraded mesh): u = 0 is not in K_h there, and Newton diverged at
+    iteration 0. It now starts from the projection of 0 and agrees with the conic
+    reference (the same discrete problem: U to 1e-8)."""
+    from elastoplast.bounds import conservative_discretization
+
+    data = small_cylinder()
+    data["mesh"].update(divisions=[10, 5], grading=1.0)
+    disc = conservative_discretization(build(data))
+    assert disc.psi.min() < 0
+    newton, conic = ep.solve(disc, "newton"), ep.solve(disc, "conic")
+    assert newton.converged and conic.converged
+    assert newton.U == pytest.approx(conic.U, rel=1e-8)

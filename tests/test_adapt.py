@@ -1,0 +1,224 @@
+"""The adaptive loop (issue 11): budgets met, the lower bound's own limit, warm starts,
+certified brackets across the meshes, uniform refinement, and the pictures' geometry
+(sections of a tetrahedral mesh, outlines of a zone)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import elastoplast as ep
+import elastoplast.adapt as ad
+from elastoplast.adapt import AdaptOptions, Step, adapt, uniform
+
+from conftest import cylinder_dict, sphere_quarter_dict
+
+
+@pytest.fixture(scope="module")
+def coarse_cylinder():
+    return ep.problem_from_dict(cylinder_dict(divisions=(10, 5)))
+
+
+def row(n: int, gap: float = 1.0, seconds: float = 1.0, lower: float = 0.0) -> Step:
+    return Step(step=0, n_elements=n, n_nodes=0, energy_lower=-1.0, energy_upper=-1.0 + gap, gap_rel=gap,
+                certified=True, U=0.0, U_lower=math.nan, U_upper=math.nan, seconds=seconds + lower,
+                solve_seconds=seconds, lower_seconds=lower)
+
+
+# ---------------------------------------------------------------------------
+# the loop
+# ---------------------------------------------------------------------------
+
+
+def test_element_budget_is_filled_not_overrun(coarse_cylinder):
+    """With a budget the loop lowers θ so that the last mesh fits it: no mesh above
+    the budget, and the last refinement either used θ or a smaller one."""
+    budget = 400
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", max_elements=budget))
+    assert "max_elements" in run.reason, run.reason
+    sizes = [s.n_elements for s in run.steps]
+    assert max(sizes) <= budget and sizes == sorted(sizes)
+    assert all(s.theta <= 0.5 for s in run.steps[:-1])
+    # the loop stopped because no mesh of MIN_GROWTH times the last one fits
+    assert sizes[-1] * ad.MIN_GROWTH > budget or any(s.theta < 0.5 for s in run.steps[:-1])
+
+
+def test_stops_at_the_lower_bounds_size_limit(coarse_cylinder):
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", lower_max_elements=250))
+    assert "lower bound" in run.reason and run.final.n_elements <= 250
+
+
+def test_stops_when_the_next_mesh_would_overrun_the_time_limit(coarse_cylinder, monkeypatch):
+    """The time budget enters as the largest affordable mesh (here: none larger)."""
+    monkeypatch.setattr(ad, "affordable_elements", lambda steps, seconds, bracket: steps[-1].n_elements)
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="final", time_limit=3600.0))
+    assert run.reason.startswith("time_limit") and len(run.steps) == 1
+    assert run.final.U_lower <= run.final.U_upper  # the final bracket is computed whatever stopped the loop
+
+
+def test_warm_start_gives_the_same_meshes_and_bounds(coarse_cylinder):
+    """Newton from the interpolated previous solution converges to the same discrete
+    solution (unique for H > 0), hence the same bounds and the same marking."""
+    opts = AdaptOptions(rtol=1e-6, bracket="never", max_iter=4)
+    warm, cold = adapt(coarse_cylinder, opts), adapt(coarse_cylinder, replace(opts, warm_start=False))
+    assert [s.n_elements for s in warm.steps] == [s.n_elements for s in cold.steps]
+    for a, b in zip(warm.steps, cold.steps):
+        assert a.energy_upper == pytest.approx(b.energy_upper, rel=1e-6)
+        assert a.energy_lower == pytest.approx(b.energy_lower, rel=1e-6)
+        assert a.U == pytest.approx(b.U, rel=1e-6)
+
+
+def test_a_failed_conservative_solve_leaves_the_problems_own_bound(coarse_cylinder, monkeypatch):
+    """The conservative variant's solution is only a candidate for a smaller upper
+    bound: without it the bound is that of the problem's own solution."""
+    from elastoplast.bounds import upper_bound
+
+    solve = ad._solve
+    monkeypatch.setattr(ad, "_solve", lambda disc, options, start, required=True:
+                        solve(disc, options, start, required) if required else None)
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", max_iter=2))
+    assert all(s.certified for s in run.steps)
+    assert run.final.energy_upper == upper_bound(run.disc, run.solution).Pi
+
+
+def test_every_bracket_holds_on_every_mesh(coarse_cylinder):
+    """Each mesh's energy bracket and U bracket contain the same continuum values,
+    so the brackets of all meshes intersect (docs/bounds.md, section 5: a lower
+    bound from one mesh never exceeds an upper bound from another)."""
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="every", max_iter=3))
+    assert all(s.certified for s in run.steps)
+    assert max(s.energy_lower for s in run.steps) <= min(s.energy_upper for s in run.steps)
+    assert max(s.U_lower for s in run.steps) <= min(s.U_upper for s in run.steps)
+    assert all(s.bracket_seconds > 0 for s in run.steps)
+
+
+def test_uniform_refines_every_element(coarse_cylinder):
+    """Every element bisected twice: four triangles each (Kuhn triangles, no closure)."""
+    run = uniform(coarse_cylinder, AdaptOptions(rtol=1e-6), max_elements=1600)
+    n0 = coarse_cylinder.mesh.n_elements
+    assert [s.n_elements for s in run.steps] == [n0, 4 * n0, 16 * n0]
+    assert "max_elements" in run.reason
+
+
+# ---------------------------------------------------------------------------
+# the budget model and the rates
+# ---------------------------------------------------------------------------
+
+
+def test_cost_model_is_exact_on_a_power_law_and_inverts():
+    steps = [row(n, seconds=2e-4 * n**1.5, lower=1e-3 * n**1.5) for n in (100, 300, 900)]
+    for n in (1000, 5000):
+        assert ad.predicted_seconds(steps, n, bracket=False) == pytest.approx(1.2e-3 * n**1.5, rel=1e-9)
+        assert ad.predicted_seconds(steps, n, bracket=True) == pytest.approx(3.2e-3 * n**1.5, rel=1e-9)
+    n = ad.affordable_elements(steps, 1.2e-3 * 5000**1.5, bracket=False)
+    assert n in (4999, 5000)
+    assert ad.affordable_elements(steps, 0.0, bracket=False) == 0
+
+
+def test_cost_exponent_is_kept_in_range():
+    """A cost that falls with the mesh (timing noise) is extrapolated linearly."""
+    steps = [row(100, seconds=10.0), row(400, seconds=1.0)]
+    assert ad.predicted_seconds(steps, 800, bracket=False) == pytest.approx(2.0, rel=1e-12)
+
+
+def test_rates_and_elements_at_a_gap_on_a_power_law():
+    steps = [row(n, gap=3.0 * n**-0.75) for n in (100, 400, 1600, 6400)]
+    assert ad.fitted_rate(steps) == pytest.approx(0.75, rel=1e-12)
+    assert ad.fitted_rate(steps, last=2) == pytest.approx(0.75, rel=1e-12)
+    assert ad.elements_at_gap(steps, 3.0 * 1000**-0.75) == pytest.approx(1000, rel=1e-9)
+    assert ad.elements_at_gap(steps, 10.0) == 100
+    assert math.isnan(ad.elements_at_gap(steps, 1e-9))
+
+
+def test_next_mesh_lowers_theta_to_fit():
+    mesh = ep.structured_mesh([8.0, 4.0], [8, 4], 1.0)
+    eta = np.linspace(1.0, 2.0, mesh.n_elements)
+    free, wanted = ad._next_mesh(mesh, None, eta, 0.9, 10**9, adaptive=True)
+    assert free[0].n_elements == wanted and free[3] == 0.9
+    fit, again = ad._next_mesh(mesh, None, eta, 0.9, wanted - 1, adaptive=True)
+    assert again == wanted and fit[0].n_elements < wanted and fit[3] < 0.9
+    assert fit[2].sum() < free[2].sum() and not np.any(fit[2] & ~free[2])  # a subset is marked
+    assert ad._next_mesh(mesh, None, eta, 0.9, mesh.n_elements, adaptive=True)[0] is None
+    assert ad._next_mesh(mesh, None, eta, 0.9, 4 * mesh.n_elements - 1, adaptive=False) == (None, 4 * mesh.n_elements)
+
+
+# ---------------------------------------------------------------------------
+# pictures
+# ---------------------------------------------------------------------------
+
+
+def polygon_area(P: np.ndarray) -> np.ndarray:
+    x, y = P[..., 0], P[..., 1]
+    return 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
+
+
+@pytest.mark.parametrize("axis,where", [(1, "low side"), (1, "grid layer"), (0, "between layers"), (1, "high side")])
+def test_sections_tile_the_cut_of_the_box(axis, where):
+    """The sections of the tetrahedra by a plane tile the box's cross-section:
+    their areas add up to its area, each polygon proper and each element once
+    (boundary planes, a plane through a layer of nodes, a plane between layers)."""
+    mesh = ep.structured_mesh([6.0, 6.0, 3.0], [4, 4, 3], 1.5, grading=1.4, origin=[0.0, 0.0, 0.0])
+    layers = np.unique(mesh.points[:, axis])
+    value = {"low side": layers[0], "grid layer": layers[2], "between layers": 0.5 * (layers[1] + layers[2]),
+             "high side": layers[-1]}[where]
+    lo, hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
+    polygons, elements, keys = ad.slice_polygons(mesh, axis, value)
+    other = [i for i in range(3) if i != axis]
+    area = polygon_area(polygons)
+    assert area.sum() == pytest.approx(np.prod(hi[other] - lo[other]), rel=1e-6)
+    assert area.min() > 1e-3 * area.mean() and elements.size == np.unique(elements).size
+
+
+def test_outline_of_a_half_is_the_dividing_line():
+    """Triangles left of x = 0 in a rectangle symmetric about it: the outline is the
+    segment x = 0 across the height."""
+    mesh = ep.structured_mesh([8.0, 4.0], [8, 4], 1.0, grading=1.5)
+    inside = mesh.points[mesh.cells].mean(axis=1)[:, 0] < 0
+    seg = ad._outline(mesh.points[mesh.cells], mesh.cells, inside)
+    np.testing.assert_allclose(seg[:, :, 0], 0.0, atol=1e-12)
+    assert np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1).sum() == pytest.approx(4.0, rel=1e-12)
+
+
+def test_indicator_pictures_2d_and_3d(tmp_path, coarse_cylinder):
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", max_iter=2))
+    ad.plot_indicator(tmp_path / "a.png", run.disc, run.solution, run.bounds)
+    quarter = ep.problem_from_dict(sphere_quarter_dict(divisions=(3, 3, 3)))
+    run3 = adapt(quarter, AdaptOptions(rtol=1e-6, bracket="never", max_iter=1))
+    ad.plot_indicator(tmp_path / "b.png", run3.disc, run3.solution, run3.bounds)
+    assert (tmp_path / "a.png").stat().st_size > 0 and (tmp_path / "b.png").stat().st_size > 0
+
+
+def test_command_time_limit_bounds_the_uniform_comparison_too(tmp_path, capsys):
+    """The adaptive run spends a tiny --time-limit on its first mesh (and its U
+    bracket); nothing is left for the uniform comparison, which is skipped."""
+    import json
+
+    from elastoplast.cli import main
+    from test_cli import write_toml
+
+    problem = write_toml(tmp_path / "p.toml", cylinder_dict(divisions=(10, 5)))
+    code = main(["adapt", str(problem), "--time-limit", "0.001", "--out", str(tmp_path / "a"), "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 1 and "uniform refinement skipped" in out
+    record = json.loads((tmp_path / "a" / "adapt.json").read_text())
+    assert record["uniform"] is None and len(record["adaptive"]) == 1
+    assert record["reason"].startswith("time_limit")
+    assert (tmp_path / "a" / "indicator.png").stat().st_size > 0
+
+
+def test_adapt_refuses_perfect_plasticity():
+    """Bisection breaks the crossed pattern (the one 2D pattern that does not lock), so
+    H = 0 is refused before any work, naming material.hardening."""
+    import warnings
+
+    from test_limit_load import punch
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        disc = punch("crossed")
+    with pytest.raises(ep.InputError) as exc:
+        adapt(disc.problem, AdaptOptions(rtol=0.1))
+    assert exc.value.field == "material.hardening"

@@ -1,6 +1,6 @@
 """uzawa-fast's two candidates measured against each other and plain Uzawa (issue 4, item 2).
 
-    python benchmarks/methods/accelerated.py           # about 5 minutes on 2 cores
+    python benchmarks/methods/accelerated.py           # 144 s wall in the recorded run, 2 cores
     python benchmarks/methods/accelerated.py --quick   # small meshes, a few cases, into quick/
     python benchmarks/methods/accelerated.py --report  # only accelerated.md again, from accelerated.json
 

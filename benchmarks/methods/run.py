@@ -1,7 +1,7 @@
 """Every method on the same problems in one run (issue 4).
 
-    python benchmarks/methods/run.py            # full run (about 10-20 minutes on 2 cores)
-    python benchmarks/methods/run.py --quick    # small meshes only (about a minute), into quick/
+    python benchmarks/methods/run.py            # full run (145 s wall in the recorded run, 2 cores)
+    python benchmarks/methods/run.py --quick    # small meshes only (13 s wall), into quick/
     python benchmarks/methods/run.py --report   # only REPORT.md again, from results.json
 
 Writes ``results.json`` and ``REPORT.md`` beside this file (``--out`` to

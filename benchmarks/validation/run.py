@@ -1,7 +1,7 @@
 """Validation study of issue 5: run every comparison, write results.json, REPORT.md and plots.
 
-    python benchmarks/validation/run.py            # full study (about 10-20 min)
-    python benchmarks/validation/run.py --quick    # small meshes, about 1-2 min
+    python benchmarks/validation/run.py            # full study (180 s wall in the recorded run, 2 cores)
+    python benchmarks/validation/run.py --quick    # small meshes (10 s wall)
     python benchmarks/validation/run.py --report   # only REPORT.md and the plots again, from results.json
 
 The full study writes into this folder (committed); ``--quick`` writes into

@@ -142,7 +142,7 @@ FACTORIZATIONS: dict[str, Callable[[sp.spmatrix], Solve]] = {
     "qdldl": _factor_qdldl,
 }
 #: "auto" choice, measured in benchmarks/uzawa/components.md: on the 3D sphere with
-#: 52,728 tetrahedra (G: 24,375 rows, 958k nonzeros) PARDISO factors 3-6x faster than
+#: 52,728 tetrahedra (G: 24,375 rows, 958k nonzeros) PARDISO factors 4.8-8.1x faster than
 #: SuperLU and CHOLMOD (cholespy), which decides the setup; below about half a million
 #: nonzeros cholespy is the fastest and PARDISO's fixed cost (0.3-2 s to locate and start
 #: MKL) dominates. Each list is tried in order among the installed packages.

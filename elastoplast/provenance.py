@@ -36,14 +36,22 @@ def source_commit() -> tuple[str | None, bool | None]:
     return commit, bool(status)
 
 
+#: ``(commit, dirty)`` taken when a benchmark script started (:func:`record_parser`):
+#: a record is stamped with the state of the code that ran, not with the state after
+#: the script has written its own plots into the tracked tree.
+_SOURCE_AT_START: tuple[str | None, bool | None] | None = None
+
+
 def stamp(command: str | None = None) -> dict[str, Any]:
     """The provenance of a result being recorded now.
 
-    ``command`` defaults to the running process's command line.
+    ``command`` defaults to the running process's command line. The commit and
+    its ``dirty`` flag are those at the start of the script when it called
+    :func:`record_parser`, else those of now.
     """
     from . import __version__
 
-    commit, dirty = source_commit()
+    commit, dirty = _SOURCE_AT_START if _SOURCE_AT_START is not None else source_commit()
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not on Linux
@@ -88,7 +96,10 @@ def script_command() -> str:
 def record_parser(doc: str, quick: str = "small cases") -> argparse.ArgumentParser:
     """The command line every benchmark script shares: ``--quick`` (``quick``
     describes what it runs), ``--out DIR`` and ``--report``; ``doc`` is the
-    script's docstring, shown by ``--help``."""
+    script's docstring, shown by ``--help``. Remembers the source's commit and
+    state now, for the stamp of what the script records."""
+    global _SOURCE_AT_START
+    _SOURCE_AT_START = source_commit()
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help=f"{quick}, written into quick/ unless --out is given")
     ap.add_argument("--out", help="output directory (default: the script's folder; --quick: quick/ below it)")

@@ -272,8 +272,14 @@ def adapt(problem: Problem, options: AdaptOptions = AdaptOptions(),
     """Refine where the certified gap is, until ``rtol`` or a budget; see the module docstring.
 
     ``report`` is called with each :class:`Step` as it is done (the command
-    line prints it).
+    line prints it). Perfect plasticity (H = 0) is refused: local bisection breaks
+    the crossed pattern, the only 2D pattern whose P1 elements do not lock, so the
+    second mesh could not be solved (and P1 tetrahedra lock anyway).
     """
+    if problem.material.hardening == 0:
+        raise InputError("material.hardening", "adaptive refinement needs hardening > 0: bisection breaks the "
+                                               "crossed pattern, and with H = 0 P1 meshes that are not crossed lock; "
+                                               "'elastoplast limit' brackets the limit load")
     return _loop(problem, options, report, adaptive=True)
 
 

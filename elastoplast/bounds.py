@@ -532,7 +532,7 @@ class BoundsReport:
     lower: object = field(repr=False)
     U_lower: float = float("nan")
     U_upper: float = float("nan")
-    delta: float = float("nan")
+    delta: tuple[float, float] = (float("nan"), float("nan"))
     timings: dict = field(default_factory=dict)
 
     @property
@@ -549,7 +549,8 @@ class BoundsReport:
             "bounds_certified": self.certified,
             "U_lower": self.U_lower,
             "U_upper": self.U_upper,
-            "U_bracket_delta": self.delta,
+            "U_bracket_delta": self.delta[0],
+            "U_bracket_delta_above": self.delta[1],
             "upper_bound": {"penetration": self.upper.penetration, "shift": self.upper.shift, "lift": self.upper.lift,
                             "certified": self.upper.certified, "message": self.upper.message},
             "lower_bound": {"certified": self.lower.certified, "status": self.lower.status.value,
@@ -590,14 +591,15 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
     b = combine(upper, lower)
     if not bracket:
         return BoundsReport(bounds=b, upper=upper, lower=lower, timings=timings)
-    U_lo, U_hi, delta, ok = u_bracket_of(disc, b, sol.U, lower_options)
+    U_lo, U_hi, delta, ok = u_bracket_of(disc, b, sol.U, lower_options)  # delta: (below F, above F)
     timings["bracket"] = time.perf_counter() - t2
     return BoundsReport(bounds=b, upper=upper, lower=lower, U_lower=U_lo, U_upper=U_hi, delta=delta, timings=timings,
                         bracket_certified=ok)
 
 
-def u_bracket_of(disc: Discretization, b: Bounds, U_h: float, lower_options=None) -> tuple[float, float, float, bool]:
-    """``(U_lower, U_upper, delta, certified)``: the U bracket of :func:`u_bracket` from
+def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
+                 lower_options=None) -> tuple[float, float, tuple[float, float], bool]:
+    """``(U_lower, U_upper, (delta, delta'), certified)``: the U bracket of :func:`u_bracket` from
     the energy bracket ``b`` at F and two more lower bounds, at ``F - delta`` and
     ``F + delta'`` (no P1 solve); see :func:`certified_bounds` for the choice of
     delta and the shrinking of ``delta'``."""
@@ -624,7 +626,7 @@ def u_bracket_of(disc: Discretization, b: Bounds, U_h: float, lower_options=None
     U_lo = (minus.lower - b.energy_upper) / delta
     U_hi = (b.energy_upper - plus.lower) / delta_plus if plus is not None else float("inf")
     certified = minus.certified and plus is not None and plus.certified
-    return U_lo, U_hi, delta, certified
+    return U_lo, U_hi, (delta, delta_plus), certified
 
 
 def element_indicators(disc: Discretization, bounds: Bounds) -> np.ndarray:

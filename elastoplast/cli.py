@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", help="problem TOML file with hardening = 0")
     p.add_argument("--out", default="limit", help="output folder (default: limit)")
     p.add_argument("--order", type=int, help="degree of the kinematic velocity field, 1 or 2 (default: 2)")
-    p.add_argument("--time-limit", type=float, help="Clarabel's wall-clock limit per program, seconds")
+    p.add_argument("--time-limit", type=float, help="wall-clock limit of each of the two programs, seconds")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
     p = sub.add_parser("adapt", help="refine where the certified gap is until the relative gap is at most --rtol")
@@ -232,6 +232,7 @@ def _bounds(args: argparse.Namespace) -> int:
 
 
 def _limit(args: argparse.Namespace) -> int:
+    from .equilibrium import LowerBoundOptions
     from .limit import LimitOptions, limit_load
     from .output import json_text, staged_output
 
@@ -243,7 +244,7 @@ def _limit(args: argparse.Namespace) -> int:
     except InputError as exc:
         raise InputError(f"--{exc.field.replace('_', '-')}", exc.message) from None
     disc = _discretize(path, data, args.quiet, "limit load bracket (H = 0)")
-    bracket = limit_load(disc, options)
+    bracket = limit_load(disc, options, LowerBoundOptions(time_limit=options.time_limit))
     with staged_output(args.out, "--out") as tmp:
         from .provenance import stamp
 

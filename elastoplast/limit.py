@@ -65,7 +65,7 @@ class LimitOptions(SolverOptions):
     ``order``: velocity degree, 1 or 2 (default: 2, which does not lock in 3D
     and, measured on the Prandtl punch, gives tighter bounds in 2D as well; see
     benchmarks/bounds/limit.md). ``ip_tol``: Clarabel's gap and feasibility
-    tolerance. ``trace_tol``: the largest ``max|tr ε| / max|ε|`` accepted after
+    tolerance. ``tol``: the largest ``max|tr ε| / max|ε|`` accepted after
     the projection for the bound to count as certified."""
 
     order: int = option(2, int, "velocity degree (1: P1, 2: P2)", lo=1, hi=2)
@@ -73,8 +73,7 @@ class LimitOptions(SolverOptions):
     ip_tol: float = option(1e-9, float, "Clarabel's gap and feasibility tolerance", lo=1e-14, hi=1e-3)
     verbose: bool = option(False, bool, "Clarabel's own iteration log (on stdout)", persist=False)
     linear_solver: str = option("qdldl", str, "Clarabel's KKT factorisation", choices=("qdldl", "faer"))
-    trace_tol: float = option(1e-10, float, "largest relative trace residual of a certified bound", lo=1e-16,
-                              hi=1e-4)
+    tol: float = option(1e-10, float, "largest relative trace residual of a certified bound", lo=1e-16, hi=1e-4)
 
 
 # ----------------------------------------------------------------------------
@@ -403,9 +402,9 @@ def kinematic_limit_load(disc: Discretization, options: LimitOptions = LimitOpti
         F = np.inf
     elif not vmin > 0:
         notes.append(f"the smallest contact velocity is {vmin:.3g} <= 0: no finite bound")
-    elif residual > options.trace_tol:
-        notes.append(f"trace residual {residual:.1e} above {options.trace_tol:.0e}: not certified")
-    certified = bool(np.isfinite(F) and residual <= options.trace_tol)
+    elif residual > options.tol:
+        notes.append(f"trace residual {residual:.1e} above {options.tol:.0e}: not certified")
+    certified = bool(np.isfinite(F) and residual <= options.tol)
     note = obstacle_note(disc)
     if note:
         notes.append(note)

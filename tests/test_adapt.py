@@ -207,3 +207,18 @@ def test_command_time_limit_bounds_the_uniform_comparison_too(tmp_path, capsys):
     assert record["uniform"] is None and len(record["adaptive"]) == 1
     assert record["reason"].startswith("time_limit")
     assert (tmp_path / "a" / "indicator.png").stat().st_size > 0
+
+
+def test_adapt_refuses_perfect_plasticity():
+    """Bisection breaks the crossed pattern (the one 2D pattern that does not lock), so
+    H = 0 is refused before any work, naming material.hardening."""
+    import warnings
+
+    from test_limit_load import punch
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        disc = punch("crossed")
+    with pytest.raises(ep.InputError) as exc:
+        adapt(disc.problem, AdaptOptions(rtol=0.1))
+    assert exc.value.field == "material.hardening"

@@ -244,9 +244,10 @@ def _kill_group(proc: subprocess.Popen) -> None:
 
 
 def test_sigkill_mid_campaign_then_rerun_completes_each_case_once(tmp_path, capsys):
-    # 8 cases of ~0.5 s each (48 x 24 elements): the kill lands while most still run
-    forces = [1000.0 + 400.0 * i for i in range(8)]
-    path = write_campaign(tmp_path / "c.toml", f'"load.force" = {forces}', divisions=(48, 24))
+    # 12 cases of ~1 s each (64 x 32 elements): the kill lands while most still run, even
+    # when a loaded machine starves this test's polling loop for a few seconds
+    forces = [1000.0 + 300.0 * i for i in range(12)]
+    path = write_campaign(tmp_path / "c.toml", f'"load.force" = {forces}', divisions=(64, 32))
     out = tmp_path / "store"
     log = open(tmp_path / "first.log", "w")
     proc = subprocess.Popen([sys.executable, "-m", "elastoplast", "campaign", str(path), "--out", str(out),

@@ -23,7 +23,7 @@ extrapolated as a power of the number of elements, with the final U bracket),
 θ is lowered (by bisection, marking a subset, since the marking is monotone) to
 the largest value whose mesh fits; the loop stops when no mesh with at least
 ``MIN_GROWTH`` times the elements fits. The time budget rests on a prediction
-and is overrun by its error: measured on the 3D quarter sphere, 669 s for a
+and is overrun by its error: measured on the 3D quarter sphere (Clarabel, commit 91d17b4), 669 s for a
 600 s budget (the lower bound at F took the predicted 159 s, the two bracket
 programs 1.2 times that each on a loaded machine).
 

@@ -130,10 +130,16 @@ class Discretization:
         return np.linalg.norm(xp - np.asarray(self.problem.obstacle.center), axis=1)
 
     def with_force(self, force: float) -> "Discretization":
-        """The same operators for another load (nothing is rebuilt)."""
+        """The same operators for another load (nothing is rebuilt); ``force`` finite and > 0."""
         from dataclasses import replace
 
-        return replace(self, problem=replace(self.problem, force=float(force)))
+        try:
+            value = float(force)
+        except (TypeError, ValueError, OverflowError):
+            value = float("nan")
+        if not (np.isfinite(value) and value > 0):
+            raise InputError("load.force", f"must be a finite number > 0, got {force!r}")
+        return replace(self, problem=replace(self.problem, force=value))
 
 
 def _element_geometry(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import ast
 import math
 import numbers
+import os
 import tomllib
 import warnings
 from dataclasses import dataclass, field
@@ -488,8 +489,11 @@ def read_toml(path: str | Path, field: str = "problem", what: str = "problem fil
 
     Refused with one line: a missing path, a directory or device, an unreadable or
     empty file, more than ``MAX_PROBLEM_BYTES``, text that is not UTF-8 (a UTF-8 byte
-    order mark is skipped), invalid TOML, nesting too deep for the parser.
+    order mark is skipped), invalid TOML, nesting too deep for the parser, a path
+    that is not a string or path.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(field, f"expected a path to a {what}, got {type(path).__name__}")
     path = Path(path)
     raw = read_bytes(path, field, what, MAX_PROBLEM_BYTES)
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):

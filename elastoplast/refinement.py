@@ -75,7 +75,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, expect
 from .mesh import Mesh
 
 _LOW32 = np.int64(0xFFFFFFFF)
@@ -146,6 +146,7 @@ class BisectionState:
 
 
 def _check_mesh(mesh: Mesh) -> int:
+    expect(mesh, Mesh, "mesh", "ep.structured_mesh, ep.read_mesh or problem.mesh")
     d = mesh.dim
     if d not in (2, 3) or mesh.cells.ndim != 2 or mesh.cells.shape[1] != d + 1:
         raise InputError("mesh", f"refinement needs triangles in 2D or tetrahedra in 3D, got cells of shape {mesh.cells.shape} in {d}D")

@@ -192,8 +192,9 @@ def test_indicator_pictures_2d_and_3d(tmp_path, coarse_cylinder):
 
 
 def test_command_time_limit_bounds_the_uniform_comparison_too(tmp_path, capsys):
-    """The adaptive run spends a tiny --time-limit on its first mesh (and its U
-    bracket); nothing is left for the uniform comparison, which is skipped."""
+    """The adaptive run spends a tiny --time-limit on its first mesh; nothing is left
+    for the U bracket (two more lower bounds) or the uniform comparison: both are
+    skipped, and the reason says so."""
     import json
 
     from elastoplast.cli import main
@@ -205,7 +206,8 @@ def test_command_time_limit_bounds_the_uniform_comparison_too(tmp_path, capsys):
     assert code == 1 and "uniform refinement skipped" in out
     record = json.loads((tmp_path / "a" / "adapt.json").read_text())
     assert record["uniform"] is None and len(record["adaptive"]) == 1
-    assert record["reason"].startswith("time_limit")
+    assert record["reason"].startswith("time_limit") and "no U bracket" in record["reason"]
+    assert record["adaptive"][0]["U_lower"] is None
     assert (tmp_path / "a" / "indicator.png").stat().st_size > 0
 
 

@@ -333,3 +333,117 @@ def test_newton_starts_feasible_when_the_obstacle_starts_above_the_plane():
     newton, conic = ep.solve(disc, "newton"), ep.solve(disc, "conic")
     assert newton.converged and conic.converged
     assert newton.U == pytest.approx(conic.U, rel=1e-8)
+
+
+# ---------------------------------------------------------------------------
+# the later commands (bounds, limit, adapt, campaign [adapt]) and the Python API
+# ---------------------------------------------------------------------------
+
+
+def test_limit_with_a_tiny_time_limit_says_what_it_has(tmp_path, capsys):
+    """`limit --time-limit 1e-9` stopped the static program before any load: the
+    certificate then divided by a zero scale (exit 3, ZeroDivisionError). F_c >= 0
+    is all such a run shows: exit 1, F_lower = 0, not certified, strict JSON."""
+    from test_commands import half_punch, strict_json
+
+    problem = write_toml(tmp_path / "p.toml", half_punch())
+    code, line = run(capsys, "limit", problem, "--time-limit", "1e-9", "--out", tmp_path / "l", "--quiet")
+    assert code == 1, line
+    s = strict_json(tmp_path / "l" / "summary.json")
+    assert s["F_lower"] == 0.0 and s["lower_certified"] is False and s["certified"] is False
+    assert "no positive load" in s["message"]
+
+
+def test_sigterm_unwinds_like_ctrl_c(tmp_path):
+    """`timeout` or a batch scheduler sends SIGTERM: Python's default ended the process
+    on the spot and left the staged folder (`.a.tmp-*`) beside --out, which then made
+    the parent folder look foreign. Now exit 143, one line, nothing left behind."""
+    import signal
+    import subprocess
+    import sys
+
+    data = small_cylinder()
+    problem = write_toml(tmp_path / "p.toml", data)
+    work = tmp_path / "work"
+    work.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "elastoplast", "adapt", str(problem), "--rtol", "1e-6",
+                             "--out", str(work / "a"), "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            cwd=tmp_path, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list(work.glob(".a.tmp-*")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # the staged folder exists once the run is under way
+        assert proc.poll() is None, proc.communicate()[1]
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 143 and err.strip().splitlines()[-1] == "terminated", err
+    assert list(work.iterdir()) == []
+
+
+def test_option_of_the_wrong_type_is_refused(problem_file, tmp_path, capsys):
+    """`--option initial=1` (Uzawa's warm start takes a Solution) reached the solver:
+    exit 3, AttributeError. Now refused naming the option."""
+    code, line = run(capsys, "solve", problem_file, "--method", "uzawa", "--option", "initial=1", "--quiet",
+                     "--out", tmp_path / "o")
+    assert code == 2 and line.startswith("error: --option initial:") and "Solution" in line, line
+    with pytest.raises(ep.InputError) as exc:
+        ep.UzawaOptions(initial={"u": 1})
+    assert exc.value.field == "initial"
+
+
+def test_campaign_refuses_an_adaptive_target_with_h0_before_running(tmp_path):
+    """An `[adapt]` table on an H = 0 problem ran, and was stored as a failed case;
+    adapt cannot run it, so the point is refused when the campaign is loaded."""
+    from elastoplast.campaign import load_campaign
+    from test_commands import half_punch
+
+    write_toml(tmp_path / "p.toml", half_punch())
+    path = tmp_path / "c.toml"
+    path.write_text('[campaign]\nproblem = "p.toml"\n[adapt]\nrtol = 0.3\n[sweep]\n"load.force" = [100.0]\n')
+    with pytest.raises(ep.InputError) as exc:
+        load_campaign(path)
+    assert "material.hardening" in str(exc.value)
+
+
+def _api_calls(disc):
+    from elastoplast.adapt import adapt
+    from elastoplast.bounds import certified_bounds
+
+    return {
+        "with_force(-1)": (lambda: disc.with_force(-1.0), "load.force"),
+        "with_force(nan)": (lambda: disc.with_force(float("nan")), "load.force"),
+        "with_force(inf)": (lambda: disc.with_force(float("inf")), "load.force"),
+        "certified_bounds(solution='x')": (lambda: certified_bounds(disc, solution="x"), "solution"),
+        "certified_bounds(lower_options={'tol': 1})": (
+            lambda: certified_bounds(disc, lower_options={"tol": 1}, bracket=False), "lower_options.tol"),
+        "adapt(disc)": (lambda: adapt(disc), "problem"),
+        "adapt(problem, 'fast')": (lambda: adapt(disc.problem, "fast"), "options"),
+        "refine(None, [0])": (lambda: ep.refine(None, [0]), "mesh"),
+        "read_toml(5)": (lambda: ep.problem.read_toml(5), "problem"),
+        "solve_lower_bound(disc.problem)": (lambda: ep.solve_lower_bound(disc.problem), "disc"),
+    }
+
+
+@pytest.mark.parametrize("name", list(_api_calls(None)))
+def test_python_entry_points_refuse_bad_arguments_naming_them(small_disc, name):
+    """Each of these raised TypeError, ValueError or AttributeError from deep inside
+    (or, for with_force, was accepted and solved into a FAILED answer)."""
+    call, field = _api_calls(small_disc)[name]
+    with pytest.raises(ep.InputError) as exc:
+        call()
+    assert exc.value.field == field, exc.value
+
+
+def test_python_entry_points_take_options_as_mappings():
+    """One option path: a mapping is checked like an options object (was AttributeError)."""
+    from elastoplast.limit import kinematic_limit_load
+
+    punch = build(__import__("test_commands").half_punch())
+    with pytest.raises(ep.InputError) as exc:
+        kinematic_limit_load(punch, {"order": 3})
+    assert exc.value.field == "options.order"
+    assert kinematic_limit_load(punch, {"order": 1}).order == 1

@@ -34,8 +34,9 @@ conservative variant (:func:`~elastoplast.bounds.conservative_discretization`,
 whose solution usually gives the smaller upper bound). The U bracket
 (:func:`~elastoplast.bounds.u_bracket`) costs two more lower-bound programs, at
 ``F ∓ δ``: by default (``bracket = "final"``) it is computed on the last mesh
-only, whatever stopped the loop (the time budget reserves for it), unless the time
-limit is already spent (the first mesh, always bounded, can overrun a tiny budget). For
+only, whatever stopped the loop (the time budget reserves for it), unless what is left of
+the time limit is less than its predicted cost (twice the last lower bound's time: the
+first mesh, always bounded, can overrun a small budget). For
 comparison, :func:`uniform` runs the same pipeline refining every element.
 
 Measured (benchmarks/adapt/REPORT.md): the lower-bound program is most of the
@@ -399,9 +400,11 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
                 if adaptive:
                     stop += f", and no smaller θ gives {MIN_GROWTH:g}x the {mesh.n_elements:,} elements within it"
         if stop is not None:
-            spent = options.time_limit is not None and time.perf_counter() - t_start >= options.time_limit
-            if final_bracket and math.isnan(row.U_lower) and spent:  # two more lower bounds: not after the limit
-                stop += "; no U bracket: the time limit is spent"
+            # the bracket is two more lower bounds, each about as long as this mesh's: not past the limit
+            left = math.inf if options.time_limit is None else options.time_limit - (time.perf_counter() - t_start)
+            if final_bracket and math.isnan(row.U_lower) and 2.0 * row.lower_seconds > left:
+                stop += (f"; no U bracket: the time limit is spent" if left <= 0 else
+                         f"; no U bracket: it would take about {2.0 * row.lower_seconds:.0f} s, {left:.0f} s left")
             elif final_bracket and math.isnan(row.U_lower):
                 done = with_bracket(done, options)
             row = replace(done.row, seconds=time.perf_counter() - t0)
@@ -739,6 +742,9 @@ def run_adapt_command(problem: Problem, options: AdaptOptions, out_dir) -> bool:
         left = None if options.time_limit is None else options.time_limit - (time.perf_counter() - t0)
         if options.compare_uniform and left is not None and left <= 0:
             print("uniform refinement skipped: the time limit is spent", file=sys.stdout)
+        elif options.compare_uniform and left is not None and left < run.steps[0].seconds:  # its first mesh is the same
+            print(f"uniform refinement skipped: {left:.0f} s left, its first mesh took {run.steps[0].seconds:.0f} s",
+                  file=sys.stdout)
         elif options.compare_uniform:
             print("uniform refinement, for comparison:", file=sys.stdout)
             uni = uniform(problem, replace(options, time_limit=left),

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .checks import check_mesh_size
-from .errors import InputError
+from .errors import InputError, expect
 from .material import Material, n_components
 from .mesh import Mesh, _boundary_facets
 from .problem import Problem
@@ -324,6 +324,7 @@ def _vertical_fixed_message(problem: Problem, contact_nodes: np.ndarray, vertica
 
 def discretize(problem: Problem) -> Discretization:
     """Build the operators of (2.1) and refuse inputs that make it ill-posed."""
+    expect(problem, Problem, "problem", "ep.problem_from_dict(data) or ep.load_problem(path)")
     mesh = problem.mesh
     d = mesh.dim
     check_mesh_arrays(mesh)

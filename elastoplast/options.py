@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -97,10 +98,11 @@ def check_value(name: str, value: Any, spec: Spec) -> Any:
     if spec.kind is int:
         if isinstance(value, float) and value.is_integer():
             value = int(value)
-        if not isinstance(value, int):
+        if not isinstance(value, numbers.Integral):  # numpy integers too
             raise bad
+        value = int(value)
     elif spec.kind is float:
-        if not isinstance(value, (int, float)):
+        if not isinstance(value, numbers.Real):
             raise bad
         try:
             value = float(value)

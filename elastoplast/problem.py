@@ -11,7 +11,6 @@ from __future__ import annotations
 import ast
 import math
 import numbers
-import os
 import tomllib
 import warnings
 from dataclasses import dataclass, field
@@ -21,7 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .checks import read_bytes
+from .checks import as_path, read_bytes
 from .errors import InputError
 from .material import Material
 from .mesh import Mesh, read_mesh, structured_mesh
@@ -492,9 +491,7 @@ def read_toml(path: str | Path, field: str = "problem", what: str = "problem fil
     order mark is skipped), invalid TOML, nesting too deep for the parser, a path
     that is not a string or path.
     """
-    if not isinstance(path, (str, os.PathLike)):
-        raise InputError(field, f"expected a path to a {what}, got {type(path).__name__}")
-    path = Path(path)
+    path = as_path(path, field, what)
     raw = read_bytes(path, field, what, MAX_PROBLEM_BYTES)
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
         raise InputError(field, f"{path} is UTF-16 text; TOML files are UTF-8 (save it as UTF-8)")
@@ -516,5 +513,5 @@ def read_toml(path: str | Path, field: str = "problem", what: str = "problem fil
 
 def load_problem(path: str | Path) -> Problem:
     """Read a problem TOML file; relative mesh paths are relative to it."""
-    path = Path(path)
+    path = as_path(path, "problem", "problem file")
     return problem_from_dict(read_toml(path), base_dir=path.parent)

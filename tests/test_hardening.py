@@ -423,6 +423,13 @@ def _api_calls(disc):
         "adapt(disc)": (lambda: adapt(disc), "problem"),
         "adapt(problem, 'fast')": (lambda: adapt(disc.problem, "fast"), "options"),
         "refine(None, [0])": (lambda: ep.refine(None, [0]), "mesh"),
+        # 2^40 children of one triangle: was allocated until the machine killed the process
+        "refine(mesh, [0], bisections=40)": (lambda: ep.refine(disc.mesh, [0], bisections=40), "bisections"),
+        # wrapped around in an int16 counter: the mesh came back unrefined, silently
+        "refine(mesh, [0], bisections=10**9)": (lambda: ep.refine(disc.mesh, [0], bisections=10**9), "bisections"),
+        "discretize(dict)": (lambda: ep.discretize({"mesh": {}}), "problem"),
+        "load_problem(None)": (lambda: ep.load_problem(None), "problem"),
+        "read_mesh(None)": (lambda: ep.read_mesh(None), "mesh.file"),
         "read_toml(5)": (lambda: ep.problem.read_toml(5), "problem"),
         "solve_lower_bound(disc.problem)": (lambda: ep.solve_lower_bound(disc.problem), "disc"),
     }

@@ -6,7 +6,8 @@ Exit codes: 0 solved and certified, 1 the solver did not converge (the status
 says why; files are still written), 2 bad input (one line naming the field),
 3 an internal error (a bug: one line; ``ELASTOPLAST_DEBUG=1`` shows the
 traceback), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM: ``timeout``, a batch
-scheduler); an interrupted or terminated run leaves no staged output behind.
+scheduler); an interrupted or terminated run leaves no staged output behind; 141 when
+stdout was closed by its reader (the output files are written).
 
 Every solver option reaches the method through one path
 (:func:`elastoplast.solvers.method_options`): ``--tol``, ``--max-iter``,
@@ -32,6 +33,8 @@ from typing import Any, Sequence
 from .errors import InputError
 
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
+#: stdout closed by its reader (``elastoplast ... | head``): the shell's code for SIGPIPE
+EXIT_BROKEN_PIPE = 141
 
 #: command-line shorthands for solver options: flag -> option name
 OPTION_FLAGS = {"--tol": "tol", "--max-iter": "max_iter", "--rho": "rho", "--time-limit": "time_limit"}
@@ -194,7 +197,7 @@ def _solve(args: argparse.Namespace) -> int:
     path, data, method, opts = _setup(args)
     disc = _discretize(path, data, args.quiet, f"method {method}")
     sol = solve(disc, method, opts)
-    data = write_results(args.out, disc, sol)
+    data = write_results(args.out, disc, sol, field="--out")
     print(f"{sol.status.value}: U = {sol.U:.6g}, max contact pressure = {data['max_contact_pressure']:.6g}, "
           f"contact radius = {data['contact_radius']:.4g}, plastic volume = {100 * data['plastic_volume_fraction']:.2f}%")
     print(f"KKT worst residual {sol.kkt.worst:.2e}, duality gap {sol.duality_gap:.2e}, "
@@ -225,7 +228,7 @@ def _bounds(args: argparse.Namespace) -> int:
               file=sys.stderr)
     report = certified_bounds(disc, sol, method, bracket=not args.no_bracket, options=opts)
     b = report.bounds
-    write_results(args.out, disc, sol, extra=report.as_dict(), **gap_fields(disc, b))
+    write_results(args.out, disc, sol, extra=report.as_dict(), field="--out", **gap_fields(disc, b))
     bracket = "" if args.no_bracket else f"; U in [{report.U_lower:.6g}, {report.U_upper:.6g}]"
     print(f"energy in [{b.energy_lower:.8g}, {b.energy_upper:.8g}] (relative gap {b.energy_gap_rel:.2e}){bracket}"
           f" (discrete U = {sol.U:.6g}); stress error <= {b.stress_error_bound:.4g} "
@@ -365,6 +368,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         except Terminated:
             print("terminated", file=sys.stderr)
             return EXIT_TERMINATED
+        except BrokenPipeError:  # the files are written; only the report's reader has gone
+            with contextlib.suppress(OSError):
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+            return EXIT_BROKEN_PIPE
         except MemoryError:
             print("error: out of memory (the problem is too large for this machine; try a coarser mesh "
                   "or another method)", file=sys.stderr)

@@ -48,7 +48,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .discretize import Discretization, _element_geometry, free_strain_operator
-from .equilibrium import LimitLowerBound, LowerBoundOptions, static_limit_load
+from .equilibrium import LimitLowerBound, LowerBoundOptions, check_lower_bound_size, static_limit_load
 from .errors import InputError, expect
 from .options import SolverOptions, option
 from .material import identity_vector
@@ -464,6 +464,7 @@ def limit_load(disc: Discretization, options: LimitOptions = LimitOptions(),
     not used."""
     _check_perfectly_plastic(disc)
     options, lower_options = LimitOptions.of(options), LowerBoundOptions.of(lower_options, "lower_options")
+    check_lower_bound_size(disc, lower_options, limit=True)  # before the kinematic program, which would run first
     upper = kinematic_limit_load(disc, options)
     lower = static_limit_load(disc, lower_options)
     notes = [f"upper: {upper.message}", f"lower: {lower.message}"]

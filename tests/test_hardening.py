@@ -454,3 +454,69 @@ def test_python_entry_points_take_options_as_mappings():
         kinematic_limit_load(punch, {"order": 3})
     assert exc.value.field == "options.order"
     assert kinematic_limit_load(punch, {"order": 1}).order == 1
+
+
+def test_limit_refuses_a_mesh_too_large_before_the_kinematic_program(tmp_path, capsys, monkeypatch):
+    """A 3D box of 192,000 tetrahedra with H = 0: the kinematic (P2) program ran first and
+    allocated until the process aborted (`memory allocation failed`, exit 134); 12,288
+    ran past a 20 s --time-limit for minutes. The static program's size limit (Clarabel,
+    8,000 tetrahedra) now refuses the mesh before either program runs."""
+    from elastoplast import limit
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("the kinematic program ran before the size check")
+
+    monkeypatch.setattr(limit, "kinematic_limit_load", must_not_run)
+    data = {"mesh": {"generator": "box", "size": [12.0, 12.0, 6.0], "divisions": [16, 16, 6], "contact_radius": 4.5},
+            "material": {"E": 200000.0, "nu": 0.3, "yield_stress": 1500.0, "hardening": 0.0},
+            "obstacle": {"shape": "sphere", "radius": 40.0}, "load": {"force": 7330.0}}
+    code, line = run(capsys, "limit", write_toml(tmp_path / "p.toml", data), "--out", tmp_path / "l", "--quiet")
+    assert code == 2 and line.startswith("error: mesh:") and "9,216 elements" in line, line
+    assert not (tmp_path / "l").exists()
+
+
+def test_output_folder_has_the_permissions_of_a_new_folder(problem_file, tmp_path, capsys):
+    """The staged folder came from mkdtemp (mode 0700), so every output folder was
+    unreadable to the user's group, unlike one made by mkdir; now it follows the umask."""
+    import os
+
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert main(["solve", str(problem_file), "--quiet", "--out", str(tmp_path / "o")]) == 0
+    assert (tmp_path / "o").stat().st_mode & 0o777 == 0o777 & ~umask
+
+
+def test_full_disk_names_out_and_keeps_the_earlier_output(problem_file, tmp_path, capsys, monkeypatch):
+    """Writing the output on a full disk was an 'internal error' (exit 3, OSError): it is
+    the place written to, named like any other bad --out, and the earlier output stays."""
+    import errno
+
+    out = tmp_path / "o"
+    assert main(["solve", str(problem_file), "--quiet", "--out", str(out)]) == 0
+    before = sorted(p.name for p in out.iterdir())
+    capsys.readouterr()
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(ep.output, "write_vtu", full)
+    code, line = run(capsys, "solve", problem_file, "--quiet", "--out", out)
+    assert code == 2 and line.startswith("error: --out:") and "No space left" in line, line
+    assert sorted(p.name for p in out.iterdir()) == before
+    assert [p.name for p in tmp_path.iterdir() if ".tmp-" in p.name] == []
+
+
+def test_closed_stdout_is_not_an_internal_error(problem_file, tmp_path):
+    """`elastoplast solve ... | head -c 0`: printing the report raised BrokenPipeError,
+    reported as an internal error (exit 3). The files are written: exit 141, as the
+    shell gives for SIGPIPE, and nothing on stderr."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "elastoplast", "solve", str(problem_file), "--quiet", "--out",
+                             str(tmp_path / "o")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path)
+    proc.stdout.close()  # the reader has gone before anything was printed
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    assert proc.wait(timeout=60) == 141 and err == "", err
+    assert (tmp_path / "o" / "summary.json").exists()

@@ -275,8 +275,17 @@ def _adapt(args: argparse.Namespace) -> int:
         method = get_method(args.method, "--method").name
     elif "method" not in data.get("solver", {}):
         method = AdaptOptions().method  # Newton: the fastest P1 solver (benchmarks/methods)
+    # of the file's [solver] table, the method and the P1 tolerance apply; nothing is dropped silently
+    table = data.get("solver", {})
+    from_file = {"tol": table["tol"]} if "tol" in table else {}
+    AdaptOptions.build(from_file, prefix="solver.")  # the range of adapt's P1 tolerance, named as written
+    unused = [f"solver.{k}" for k in table if k not in ("method", "tol")]
+    if unused:
+        warnings.warn(f"{', '.join(unused)}: not used by adapt, which sets its own P1 solves (of [solver], method "
+                      "and tol apply)")
     given = {k: v for k, v in (("rtol", args.rtol), ("theta", args.theta), ("max_elements", args.max_elements),
                                ("time_limit", args.time_limit), ("bracket", args.bracket)) if v is not None}
+    given = {**from_file, **given}
     if args.no_uniform:
         given["compare_uniform"] = False
     try:

@@ -520,3 +520,22 @@ def test_closed_stdout_is_not_an_internal_error(problem_file, tmp_path):
     proc.stderr.close()
     assert proc.wait(timeout=60) == 141 and err == "", err
     assert (tmp_path / "o" / "summary.json").exists()
+
+
+def test_adapt_uses_or_names_the_files_solver_table(tmp_path, capsys):
+    """adapt dropped the file's [solver] options silently (tol = 1e-12 ran at 1e-8,
+    max_iter = 3 vanished). Now tol is the P1 tolerance (checked against adapt's range,
+    named solver.tol) and the others are named in a warning."""
+    data = small_cylinder()
+    data["mesh"]["divisions"] = [10, 5]
+    data["solver"] = {"tol": 1e-12, "max_iter": 3}
+    out = tmp_path / "a"
+    code = main(["adapt", str(write_toml(tmp_path / "p.toml", data)), "--rtol", "0.5", "--no-uniform", "--quiet",
+                 "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0 and "warning: solver.max_iter: not used by adapt" in err, err
+    assert json.loads((out / "adapt.json").read_text())["options"]["tol"] == 1e-12
+    data["solver"] = {"tol": 1e-3}
+    code, line = run(capsys, "adapt", write_toml(tmp_path / "q.toml", data), "--quiet", "--out", tmp_path / "b")
+    assert code == 2 and line.startswith("error: solver.tol:"), line
+    assert not (tmp_path / "b").exists()

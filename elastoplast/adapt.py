@@ -34,7 +34,9 @@ conservative variant (:func:`~elastoplast.bounds.conservative_discretization`,
 whose solution usually gives the smaller upper bound). The U bracket
 (:func:`~elastoplast.bounds.u_bracket`) costs two more lower-bound programs, at
 ``F ∓ δ``: by default (``bracket = "final"``) it is computed on the last mesh
-only, whatever stopped the loop (the time budget reserves for it). For
+only, whatever stopped the loop (the time budget reserves for it), unless what is left of
+the time limit is less than its predicted cost (twice the last lower bound's time: the
+first mesh, always bounded, can overrun a small budget). For
 comparison, :func:`uniform` runs the same pipeline refining every element.
 
 Measured (benchmarks/adapt/REPORT.md): the lower-bound program is most of the
@@ -55,7 +57,7 @@ import numpy as np
 
 from .bounds import Bounds, conservative_discretization, element_indicators
 from .discretize import Discretization, discretize
-from .errors import InputError
+from .errors import InputError, expect
 from .mesh import Mesh
 from .options import SolverOptions, option
 from .problem import Problem
@@ -276,17 +278,25 @@ def adapt(problem: Problem, options: AdaptOptions = AdaptOptions(),
     the crossed pattern, the only 2D pattern whose P1 elements do not lock, so the
     second mesh could not be solved (and P1 tetrahedra lock anyway).
     """
+    check_adaptable(problem)
+    return _loop(problem, AdaptOptions.of(options), report, adaptive=True)
+
+
+def check_adaptable(problem: Problem) -> None:
+    """Refuse what :func:`adapt` cannot run on, before any work: not a Problem, or H = 0."""
+    expect(problem, Problem, "problem", "ep.problem_from_dict(data) or ep.load_problem(path)")
     if problem.material.hardening == 0:
         raise InputError("material.hardening", "adaptive refinement needs hardening > 0: bisection breaks the "
                                                "crossed pattern, and with H = 0 P1 meshes that are not crossed lock; "
                                                "'elastoplast limit' brackets the limit load")
-    return _loop(problem, options, report, adaptive=True)
 
 
 def uniform(problem: Problem, options: AdaptOptions = AdaptOptions(), max_elements: int | None = None,
             report: Callable[[Step], None] | None = None) -> AdaptResult:
     """The same pipeline refining every element (the comparison of the issue),
     up to ``max_elements`` (default: the options'), without U brackets."""
+    expect(problem, Problem, "problem", "ep.problem_from_dict(data) or ep.load_problem(path)")
+    options = AdaptOptions.of(options)
     opts = replace(options, max_elements=max_elements or options.max_elements, bracket="never")
     return _loop(problem, opts, report, adaptive=False)
 
@@ -390,7 +400,12 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
                 if adaptive:
                     stop += f", and no smaller θ gives {MIN_GROWTH:g}x the {mesh.n_elements:,} elements within it"
         if stop is not None:
-            if final_bracket and math.isnan(row.U_lower):
+            # the bracket is two more lower bounds, each about as long as this mesh's: not past the limit
+            left = math.inf if options.time_limit is None else options.time_limit - (time.perf_counter() - t_start)
+            if final_bracket and math.isnan(row.U_lower) and 2.0 * row.lower_seconds > left:
+                stop += (f"; no U bracket: the time limit is spent" if left <= 0 else
+                         f"; no U bracket: it would take about {2.0 * row.lower_seconds:.0f} s, {left:.0f} s left")
+            elif final_bracket and math.isnan(row.U_lower):
                 done = with_bracket(done, options)
             row = replace(done.row, seconds=time.perf_counter() - t0)
             steps.append(row)
@@ -727,6 +742,9 @@ def run_adapt_command(problem: Problem, options: AdaptOptions, out_dir) -> bool:
         left = None if options.time_limit is None else options.time_limit - (time.perf_counter() - t0)
         if options.compare_uniform and left is not None and left <= 0:
             print("uniform refinement skipped: the time limit is spent", file=sys.stdout)
+        elif options.compare_uniform and left is not None and left < run.steps[0].seconds:  # its first mesh is the same
+            print(f"uniform refinement skipped: {left:.0f} s left, its first mesh took {run.steps[0].seconds:.0f} s",
+                  file=sys.stdout)
         elif options.compare_uniform:
             print("uniform refinement, for comparison:", file=sys.stdout)
             uni = uniform(problem, replace(options, time_limit=left),

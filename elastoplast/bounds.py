@@ -41,7 +41,7 @@ from typing import Callable
 import numpy as np
 
 from .certificate import energy_norm_sq, gaps
-from .errors import InputError
+from .errors import InputError, expect
 from .discretize import Discretization
 from .material import Material, return_mapping
 
@@ -579,7 +579,12 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
     from .equilibrium import LowerBoundOptions, solve_lower_bound
     from .solvers import solve
 
-    lower_options = lower_options or LowerBoundOptions()
+    from .solution import Solution
+
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    if solution is not None:
+        expect(solution, Solution, "solution", "ep.solve(disc, method)")
+    lower_options = LowerBoundOptions.of(lower_options, "lower_options")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     sol = solve(disc, method, **options) if solution is None else solution
@@ -605,7 +610,7 @@ def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
     delta and the shrinking of ``delta'``."""
     from .equilibrium import LowerBoundOptions, solve_lower_bound
 
-    lower_options = lower_options or LowerBoundOptions()
+    lower_options = LowerBoundOptions.of(lower_options, "lower_options")
     F = disc.force
     # the gap used to choose delta never counts as less than the round-off of the bounds
     # themselves, so that (round-off of J) / delta stays far below the bracket's width

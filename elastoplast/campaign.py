@@ -210,6 +210,10 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
                 method, options = solver_settings(case_data.pop("solver", {}))
                 target = adapt_settings(case_data.pop("adapt", None), method)
                 problem = problem_from_dict(case_data, problem_dir)
+                if target is not None:
+                    from .adapt import check_adaptable
+
+                    check_adaptable(problem)  # H = 0 cannot be adapted: refused now, not recorded as failed
                 inp = resolve(problem, method, options, adapt=target)
                 mesh_key = content_hash({}, inp.arrays)
                 inp = ResolvedInput(spec=inp.spec, arrays=meshes.setdefault(mesh_key, dict(inp.arrays)))
@@ -664,10 +668,12 @@ def compare(store_dir: str | Path, method: str, *, options: Mapping[str, Any] | 
     where, params = "status = 'converged'", ()
     if reference_method is not None:
         where, params = where + " AND method = ?", (reference_method,)
-    refs = [r for r in store.rows(where, params) if r.get("final_elements") is None]  # adaptive cases: own meshes
+    rows = store.rows(where, params)
+    refs = [r for r in rows if r.get("final_elements") is None]  # adaptive cases: own meshes
     if not refs:
-        raise InputError("store", f"no converged reference case in {store.path}"
-                         + (f" solved by {reference_method!r}" if reference_method else ""))
+        raise InputError("reference_method" if reference_method else "store", f"no converged reference case in {store.path}"
+                         + (f" solved by {reference_method!r}" if reference_method else "")
+                         + (f" ({len(rows)} adaptive case(s), on meshes of their own, are not compared)" if rows else ""))
     by_problem: dict[str, list[dict]] = {}
     for row in refs:
         by_problem.setdefault(row["problem_id"], []).append(row)

@@ -35,6 +35,13 @@ def shown(path: Path) -> str:
     return text if len(text) <= 200 else f"{text[:100]}...{text[-80:]}"
 
 
+def as_path(path, field: str, what: str) -> Path:
+    """``path`` as a :class:`Path`, or an InputError naming ``field`` when it is no path at all."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(field, f"expected a path to a {what}, got {type(path).__name__}")
+    return Path(path)
+
+
 def check_input_file(path: Path, field: str, what: str) -> int:
     """The size in bytes of ``path``, refusing what cannot be read as a file.
 

@@ -5,7 +5,9 @@
 Exit codes: 0 solved and certified, 1 the solver did not converge (the status
 says why; files are still written), 2 bad input (one line naming the field),
 3 an internal error (a bug: one line; ``ELASTOPLAST_DEBUG=1`` shows the
-traceback), 130 interrupted.
+traceback), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM: ``timeout``, a batch
+scheduler); an interrupted or terminated run leaves no staged output behind; 141 when
+stdout was closed by its reader (the output files are written).
 
 Every solver option reaches the method through one path
 (:func:`elastoplast.solvers.method_options`): ``--tol``, ``--max-iter``,
@@ -17,8 +19,11 @@ first and the command line wins.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
+import threading
 import tomllib
 import warnings
 from importlib import resources
@@ -27,7 +32,9 @@ from typing import Any, Sequence
 
 from .errors import InputError
 
-EXIT_OK, EXIT_NOT_CONVERGED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EXIT_OK, EXIT_NOT_CONVERGED, EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 3, 130, 143
+#: stdout closed by its reader (``elastoplast ... | head``): the shell's code for SIGPIPE
+EXIT_BROKEN_PIPE = 141
 
 #: command-line shorthands for solver options: flag -> option name
 OPTION_FLAGS = {"--tol": "tol", "--max-iter": "max_iter", "--rho": "rho", "--time-limit": "time_limit"}
@@ -60,7 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
     p.add_argument("--method", help="solver of the P1 solution (default: the file's [solver] method, else conic)")
     p.add_argument("--out", default="bounds", help="output folder (default: bounds)")
-    _add_solver_arguments(p)
+    _add_solver_arguments(p, time_help="wall-clock limit of the P1 solve in seconds (the bound programs are not "
+                                       "limited; 'adapt --time-limit' budgets a whole run)")
     p.add_argument("--no-bracket", action="store_true", help="no U bracket (it costs two more lower-bound programs)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
@@ -76,7 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rtol", type=float, help="target relative energy gap (default: 1e-3)")
     p.add_argument("--theta", type=float, help="Dörfler parameter (default: 0.5)")
     p.add_argument("--max-elements", type=int, help="element budget (default: 2,000,000)")
-    p.add_argument("--time-limit", type=float, help="time budget in seconds")
+    p.add_argument("--time-limit", type=float, help="time budget in seconds, checked between meshes (the first mesh "
+                                                    "is always solved and bounded)")
     p.add_argument("--method", help="solver of the P1 solutions (default: newton)")
     p.add_argument("--bracket", choices=["every", "final", "never"],
                    help="U bracket on the final mesh (default), at every step, or none")
@@ -100,11 +109,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _add_solver_arguments(p: argparse.ArgumentParser) -> None:
+def _add_solver_arguments(p: argparse.ArgumentParser, time_help: str = "wall-clock limit of the solve in seconds") -> None:
     p.add_argument("--tol", type=float, help="bound on every relative KKT residual of the answer")
     p.add_argument("--max-iter", type=int, help="iteration limit")
     p.add_argument("--rho", type=float, help="Uzawa's step (uzawa only; default: automatic)")
-    p.add_argument("--time-limit", type=float, help="wall-clock limit of the solve in seconds")
+    p.add_argument("--time-limit", type=float, help=time_help)
     p.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
                    help="any option of the method (value in TOML syntax), e.g. --option polish=false")
 
@@ -188,7 +197,7 @@ def _solve(args: argparse.Namespace) -> int:
     path, data, method, opts = _setup(args)
     disc = _discretize(path, data, args.quiet, f"method {method}")
     sol = solve(disc, method, opts)
-    data = write_results(args.out, disc, sol)
+    data = write_results(args.out, disc, sol, field="--out")
     print(f"{sol.status.value}: U = {sol.U:.6g}, max contact pressure = {data['max_contact_pressure']:.6g}, "
           f"contact radius = {data['contact_radius']:.4g}, plastic volume = {100 * data['plastic_volume_fraction']:.2f}%")
     print(f"KKT worst residual {sol.kkt.worst:.2e}, duality gap {sol.duality_gap:.2e}, "
@@ -219,7 +228,7 @@ def _bounds(args: argparse.Namespace) -> int:
               file=sys.stderr)
     report = certified_bounds(disc, sol, method, bracket=not args.no_bracket, options=opts)
     b = report.bounds
-    write_results(args.out, disc, sol, extra=report.as_dict(), **gap_fields(disc, b))
+    write_results(args.out, disc, sol, extra=report.as_dict(), field="--out", **gap_fields(disc, b))
     bracket = "" if args.no_bracket else f"; U in [{report.U_lower:.6g}, {report.U_upper:.6g}]"
     print(f"energy in [{b.energy_lower:.8g}, {b.energy_upper:.8g}] (relative gap {b.energy_gap_rel:.2e}){bracket}"
           f" (discrete U = {sol.U:.6g}); stress error <= {b.stress_error_bound:.4g} "
@@ -257,7 +266,7 @@ def _limit(args: argparse.Namespace) -> int:
 
 
 def _adapt(args: argparse.Namespace) -> int:
-    from .adapt import AdaptOptions, run_adapt_command
+    from .adapt import AdaptOptions, check_adaptable, run_adapt_command
 
     from .solvers import get_method
 
@@ -266,8 +275,17 @@ def _adapt(args: argparse.Namespace) -> int:
         method = get_method(args.method, "--method").name
     elif "method" not in data.get("solver", {}):
         method = AdaptOptions().method  # Newton: the fastest P1 solver (benchmarks/methods)
+    # of the file's [solver] table, the method and the P1 tolerance apply; nothing is dropped silently
+    table = data.get("solver", {})
+    from_file = {"tol": table["tol"]} if "tol" in table else {}
+    AdaptOptions.build(from_file, prefix="solver.")  # the range of adapt's P1 tolerance, named as written
+    unused = [f"solver.{k}" for k in table if k not in ("method", "tol")]
+    if unused:
+        warnings.warn(f"{', '.join(unused)}: not used by adapt, which sets its own P1 solves (of [solver], method "
+                      "and tol apply)")
     given = {k: v for k, v in (("rtol", args.rtol), ("theta", args.theta), ("max_elements", args.max_elements),
                                ("time_limit", args.time_limit), ("bracket", args.bracket)) if v is not None}
+    given = {**from_file, **given}
     if args.no_uniform:
         given["compare_uniform"] = False
     try:
@@ -275,6 +293,7 @@ def _adapt(args: argparse.Namespace) -> int:
     except InputError as exc:
         raise InputError(f"--{exc.field.replace('_', '-')}", exc.message) from None
     disc = _discretize(path, data, args.quiet, f"adaptive refinement to rtol {options.rtol:g}")
+    check_adaptable(disc.problem)
     return EXIT_OK if run_adapt_command(disc.problem, options, args.out) else EXIT_NOT_CONVERGED
 
 
@@ -318,9 +337,32 @@ COMMANDS = {"solve": _solve, "bounds": _bounds, "limit": _limit, "adapt": _adapt
             "compare": _compare}
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised where the program is, so that it unwinds like Ctrl-C: the
+    ``finally`` blocks run and staged output folders are removed (Python's default
+    SIGTERM ends the process on the spot, leaving them behind)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds():
+    """SIGTERM raises :class:`Terminated` while the command runs (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code instead of raising for bad input."""
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), _sigterm_unwinds():
         warnings.simplefilter("always")
         warnings.showwarning = lambda msg, *a, **k: print(f"warning: {msg}", file=sys.stderr)
         try:
@@ -332,6 +374,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
+        except Terminated:
+            print("terminated", file=sys.stderr)
+            return EXIT_TERMINATED
+        except BrokenPipeError:  # the files are written; only the report's reader has gone
+            with contextlib.suppress(OSError):
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+            return EXIT_BROKEN_PIPE
         except MemoryError:
             print("error: out of memory (the problem is too large for this machine; try a coarser mesh "
                   "or another method)", file=sys.stderr)

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .checks import check_mesh_size
-from .errors import InputError
+from .errors import InputError, expect
 from .material import Material, n_components
 from .mesh import Mesh, _boundary_facets
 from .problem import Problem
@@ -130,10 +130,16 @@ class Discretization:
         return np.linalg.norm(xp - np.asarray(self.problem.obstacle.center), axis=1)
 
     def with_force(self, force: float) -> "Discretization":
-        """The same operators for another load (nothing is rebuilt)."""
+        """The same operators for another load (nothing is rebuilt); ``force`` finite and > 0."""
         from dataclasses import replace
 
-        return replace(self, problem=replace(self.problem, force=float(force)))
+        try:
+            value = float(force)
+        except (TypeError, ValueError, OverflowError):
+            value = float("nan")
+        if not (np.isfinite(value) and value > 0):
+            raise InputError("load.force", f"must be a finite number > 0, got {force!r}")
+        return replace(self, problem=replace(self.problem, force=value))
 
 
 def _element_geometry(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -318,6 +324,7 @@ def _vertical_fixed_message(problem: Problem, contact_nodes: np.ndarray, vertica
 
 def discretize(problem: Problem) -> Discretization:
     """Build the operators of (2.1) and refuse inputs that make it ill-posed."""
+    expect(problem, Problem, "problem", "ep.problem_from_dict(data) or ep.load_problem(path)")
     mesh = problem.mesh
     d = mesh.dim
     check_mesh_arrays(mesh)

@@ -62,7 +62,7 @@ import scipy.sparse as sp
 from .options import TIGHTEST_TOL, SolverOptions, option
 from .conic import _CLARABEL_STATUS, ConicOptions, clarabel_settings, elastic_first, yield_cone_rows
 from .discretize import _STRAIN_ROWS, Discretization, Units, _element_geometry, nondimensionalize
-from .errors import InputError
+from .errors import InputError, expect
 from .material import n_components, von_mises
 from .mesh import Mesh
 from .problem import Boundary
@@ -1045,6 +1045,8 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
     Raises :class:`InputError` (``load.force``) when H = 0 and the solver proves
     that no field of the equilibrium element carries F.
     """
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    options = LowerBoundOptions.of(options)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     s = _setup(disc, options)
@@ -1110,6 +1112,8 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     in (tau, lam, F)) and puts every vertex inside the yield surface. The certified
     answer is ``F_lower = s F``.
     """
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    options = LowerBoundOptions.of(options)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     m = disc.material
@@ -1140,6 +1144,11 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     scale = min(1.0, m.yield_stress / vm.max(initial=0.0)) if vm.max(initial=0.0) > 0 else 1.0
     field = replace(field, tau=field.tau * scale, lam=field.lam * scale, force=F * scale)
     timings["repair"] = time.perf_counter() - t1
+    if not field.force > 0:  # the solver stopped before any positive load (e.g. at its time limit)
+        timings["total"] = time.perf_counter() - t0
+        return LimitLowerBound(0.0, False, empty, certify_static(disc.with_force(1.0), replace(empty, force=1.0)),
+                               status, f"{ans.label}: no positive load found, F_lower = 0 is all it shows", timings,
+                               F_solver, iters, solver)
     cert = certify_static(disc.with_force(field.force), field, options.tol)
     timings["total"] = time.perf_counter() - t0
     msg = f"{ans.label}; repair residual {resid:.1e}, yield scaling 1 - {1 - scale:.1e}"

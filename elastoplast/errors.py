@@ -10,3 +10,10 @@ class InputError(ValueError):
         super().__init__(f"{field}: {message}")
         self.field = field
         self.message = message
+
+
+def expect(value, kind: type, field: str, hint: str = "") -> None:
+    """Refuse ``value`` unless it is a ``kind``: the entry points of the Python API
+    name the argument instead of failing deep inside (``hint``: how to make one)."""
+    if not isinstance(value, kind):
+        raise InputError(field, f"expected a {kind.__name__}{f' ({hint})' if hint else ''}, got {type(value).__name__}")

@@ -48,8 +48,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .discretize import Discretization, _element_geometry, free_strain_operator
-from .equilibrium import LimitLowerBound, LowerBoundOptions, static_limit_load
-from .errors import InputError
+from .equilibrium import LimitLowerBound, LowerBoundOptions, check_lower_bound_size, static_limit_load
+from .errors import InputError, expect
 from .options import SolverOptions, option
 from .material import identity_vector
 from .mesh import Mesh
@@ -347,6 +347,7 @@ class KinematicBound:
 
 
 def _check_perfectly_plastic(disc: Discretization) -> None:
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
     if disc.material.hardening != 0:
         raise InputError("material.hardening",
                          f"the limit load needs perfect plasticity (hardening = 0), got {disc.material.hardening!r}: "
@@ -384,6 +385,7 @@ def kinematic_limit_load(disc: Discretization, options: LimitOptions = LimitOpti
     from .solution import Status
 
     _check_perfectly_plastic(disc)
+    options = LimitOptions.of(options)
     t0 = time.perf_counter()
     space = velocity_space(disc, options.order)
     length = float(disc.volumes.mean() ** (1.0 / disc.dim))
@@ -461,6 +463,8 @@ def limit_load(disc: Discretization, options: LimitOptions = LimitOptions(),
     program (:func:`kinematic_limit_load`) on ``disc``'s mesh; ``disc.force`` is
     not used."""
     _check_perfectly_plastic(disc)
+    options, lower_options = LimitOptions.of(options), LowerBoundOptions.of(lower_options, "lower_options")
+    check_lower_bound_size(disc, lower_options, limit=True)  # before the kinematic program, which would run first
     upper = kinematic_limit_load(disc, options)
     lower = static_limit_load(disc, lower_options)
     notes = [f"upper: {upper.message}", f"lower: {lower.message}"]

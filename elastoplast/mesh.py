@@ -18,7 +18,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .checks import (boundary_facets, check_conforming, check_facet_groups,
+from .checks import (as_path, boundary_facets, check_conforming, check_facet_groups,
                      check_input_file, check_memory, check_mesh_size, element_name, format_bytes, locate_rows,
                      merge_coincident_nodes, mesh_read_bytes, structured_counts, unique_rows)
 from .errors import InputError
@@ -269,7 +269,7 @@ def read_mesh(path: str | Path) -> Mesh:
     Coincident nodes are merged, with a warning. The file size is checked against
     the memory available before reading, and the element count after.
     """
-    path = Path(path)
+    path = as_path(path, "mesh.file", "mesh file")
     size = check_input_file(path, "mesh.file", "mesh file")
     check_memory(mesh_read_bytes(path, size), "mesh.file", f"reading {path} ({format_bytes(size)})",
                  "use a smaller mesh")

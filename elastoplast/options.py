@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -30,7 +31,8 @@ MAX_ITER_CEILING = 1_000_000
 
 @dataclass(frozen=True)
 class Spec:
-    """What a field admits: ``kind`` (float, int, bool, str or object), a closed
+    """What a field admits: ``kind`` (float, int, bool, str, object for anything, or
+    a class whose instances only are admitted), a closed
     range ``[lo, hi]`` (``lo_open``: ``lo`` excluded), ``choices`` for strings,
     ``none`` when ``None`` is allowed, ``persist`` False for run-time settings
     that do not change the answer (progress bars, warm starts) and so stay out
@@ -56,7 +58,7 @@ def _describe(spec: Spec) -> str:
         return f"one of {list(spec.choices)}"
     if spec.kind is bool:
         return "true or false"
-    what = {int: "an integer", float: "a number", str: "a string"}.get(spec.kind, "a value")
+    what = {int: "an integer", float: "a number", str: "a string", object: "a value"}.get(spec.kind, f"a {spec.kind.__name__}")
     if spec.lo is not None and spec.hi is not None:
         what += f" in {'(' if spec.lo_open else '['}{spec.lo:g}, {spec.hi:g}]"
     elif spec.lo is not None:
@@ -79,6 +81,10 @@ def check_value(name: str, value: Any, spec: Spec) -> Any:
     if spec.kind is object:
         return value
     bad = InputError(name, f"must be {_describe(spec)}, got {short_repr(value)}")
+    if spec.kind not in (bool, str, int, float):
+        if not isinstance(value, spec.kind):
+            raise bad
+        return value
     if spec.kind is bool:
         if not isinstance(value, bool):
             raise bad
@@ -92,10 +98,11 @@ def check_value(name: str, value: Any, spec: Spec) -> Any:
     if spec.kind is int:
         if isinstance(value, float) and value.is_integer():
             value = int(value)
-        if not isinstance(value, int):
+        if not isinstance(value, numbers.Integral):  # numpy integers too
             raise bad
+        value = int(value)
     elif spec.kind is float:
-        if not isinstance(value, (int, float)):
+        if not isinstance(value, numbers.Real):
             raise bad
         try:
             value = float(value)
@@ -151,6 +158,18 @@ class SolverOptions:
             return cls(**values)
         except InputError as exc:
             raise InputError(f"{prefix}{exc.field}", exc.message) from None
+
+    @classmethod
+    def of(cls, value: "SolverOptions | Mapping[str, Any] | None", field: str = "options") -> "SolverOptions":
+        """``value`` as options of this class: ``None`` (the defaults), an instance, or a
+        mapping of option names (:meth:`build`); anything else is refused naming ``field``."""
+        if value is None:
+            return cls()
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, Mapping):
+            return cls.build(value, prefix=f"{field}.")
+        raise InputError(field, f"expected {cls.__name__} or a mapping of its options, got {type(value).__name__}")
 
     def persistent(self) -> dict[str, Any]:
         """The options that can change the answer, as plain values (for stored inputs and hashes)."""

@@ -4,6 +4,7 @@ methods, ``convergence.png``."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 import os
@@ -96,6 +97,10 @@ OUTPUT_MARKER = ".elastoplast-output.json"
 LEGACY_OUTPUTS = frozenset({"summary.json", "solution.vtu", "convergence.png", "report.md", "compare.json", "compare.png"})
 
 
+#: errors writing the output that only the place written to can cause (disk full, over quota, read-only)
+WRITE_TARGET_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS})
+
+
 def check_output_dir(out_dir: str | Path, field: str = "out") -> Path:
     """Refuse, before any work, an output folder that cannot receive results.
 
@@ -147,6 +152,9 @@ def staged_output(out_dir: str | Path, field: str = "out") -> Iterator[Path]:
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+        umask = os.umask(0o022)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)  # mkdtemp's 0700 would keep the results from the user's group
     except OSError as exc:
         raise InputError(field, f"cannot create {out_dir}: {exc.strerror}") from None
     try:
@@ -159,18 +167,23 @@ def staged_output(out_dir: str | Path, field: str = "out") -> Iterator[Path]:
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, out)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if exc.errno in WRITE_TARGET_ERRORS:  # the place, not the program: name it
+            raise InputError(field, f"cannot write {out_dir}: {exc.strerror}") from None
+        raise
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
 
 
 def write_results(out_dir: str | Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None,
-                  **vtu: Any) -> dict:
+                  *, field: str = "out", **vtu: Any) -> dict:
     """Write ``solution.vtu``, ``summary.json`` and (for iterative methods)
     ``convergence.png`` into ``out_dir``, which then holds nothing else but the
-    marker (:func:`staged_output`); returns the summary. ``vtu``: more data for
-    :func:`write_vtu` (``cell_data``, ``facets``)."""
-    with staged_output(out_dir) as tmp:
+    marker (:func:`staged_output`; errors name ``field``); returns the summary.
+    ``vtu``: more data for :func:`write_vtu` (``cell_data``, ``facets``)."""
+    with staged_output(out_dir, field) as tmp:
         return write_files(tmp, disc, sol, extra, **vtu)
 
 

@@ -20,7 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .checks import read_bytes
+from .checks import as_path, read_bytes
 from .errors import InputError
 from .material import Material
 from .mesh import Mesh, read_mesh, structured_mesh
@@ -488,9 +488,10 @@ def read_toml(path: str | Path, field: str = "problem", what: str = "problem fil
 
     Refused with one line: a missing path, a directory or device, an unreadable or
     empty file, more than ``MAX_PROBLEM_BYTES``, text that is not UTF-8 (a UTF-8 byte
-    order mark is skipped), invalid TOML, nesting too deep for the parser.
+    order mark is skipped), invalid TOML, nesting too deep for the parser, a path
+    that is not a string or path.
     """
-    path = Path(path)
+    path = as_path(path, field, what)
     raw = read_bytes(path, field, what, MAX_PROBLEM_BYTES)
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
         raise InputError(field, f"{path} is UTF-16 text; TOML files are UTF-8 (save it as UTF-8)")
@@ -512,5 +513,5 @@ def read_toml(path: str | Path, field: str = "problem", what: str = "problem fil
 
 def load_problem(path: str | Path) -> Problem:
     """Read a problem TOML file; relative mesh paths are relative to it."""
-    path = Path(path)
+    path = as_path(path, "problem", "problem file")
     return problem_from_dict(read_toml(path), base_dir=path.parent)

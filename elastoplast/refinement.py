@@ -75,8 +75,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from .checks import check_mesh_size
+from .errors import InputError, expect
 from .mesh import Mesh
+from .options import Spec, check_value
+
+#: most bisections of one element in one call (each halves it; 60 already exceed any memory)
+MAX_BISECTIONS = 60
 
 _LOW32 = np.int64(0xFFFFFFFF)
 
@@ -146,6 +151,7 @@ class BisectionState:
 
 
 def _check_mesh(mesh: Mesh) -> int:
+    expect(mesh, Mesh, "mesh", "ep.structured_mesh, ep.read_mesh or problem.mesh")
     d = mesh.dim
     if d not in (2, 3) or mesh.cells.ndim != 2 or mesh.cells.shape[1] != d + 1:
         raise InputError("mesh", f"refinement needs triangles in 2D or tetrahedra in 3D, got cells of shape {mesh.cells.shape} in {d}D")
@@ -368,11 +374,14 @@ def refine(mesh: Mesh, marked, state: BisectionState | None = None, *,
         state = initial_state(mesh)
     else:
         _check_state(state, mesh)
-    k = d if bisections is None else int(bisections)
-    if k < 1:
-        raise InputError("bisections", f"must be at least 1, got {bisections}")
+    k = d if bisections is None else check_value("bisections", bisections, Spec(int, "", lo=1, hi=MAX_BISECTIONS))
     n = mesh.n_elements
-    todo = np.where(_marked_mask(marked, n), k, 0).astype(np.int16)
+    mask = _marked_mask(marked, n)
+    # each marked element leaves at least 2^k children: refuse what cannot fit before allocating
+    least = n + int(mask.sum()) * (2**k - 1)
+    check_mesh_size(d, least // (2 if d == 2 else 6) + 1, least, 0, "bisections",
+                    f"bisecting {int(mask.sum()):,} element(s) {k} times", "mark fewer elements or bisect fewer times")
+    todo = np.where(mask, k, 0).astype(np.int16)
 
     # per-element arrays, grown in place: a bisected element's first child
     # takes its slot, the second is appended

@@ -18,7 +18,7 @@ from .accelerated import FastOptions, solve_accelerated
 from .checks import check_perfect_plasticity
 from .conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
 from .discretize import Discretization
-from .errors import InputError
+from .errors import InputError, expect
 from .newton import NewtonOptions, solve_newton
 from .options import SolverOptions
 from .solution import Solution
@@ -126,8 +126,7 @@ def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOpt
           **values: Any) -> Solution:
     """Solve (2.1) by ``method`` (a key of :data:`METHODS`), with options given
     either as an options object or as keywords (not both)."""
-    if not isinstance(disc, Discretization):
-        raise InputError("disc", f"expected a Discretization (ep.discretize(problem)), got {type(disc).__name__}")
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
     if options is not None and values:
         raise InputError("options", "give an options object or keyword options, not both")
     m = get_method(method)

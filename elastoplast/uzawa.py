@@ -26,7 +26,7 @@ from __future__ import annotations
 import contextlib
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.linalg as sla
@@ -175,7 +175,8 @@ class UzawaOptions(SolverOptions):
                                none=True)
     check_every: int | None = option(None, int, "iterations between certificate checks (none: automatic)", lo=1,
                                      hi=MAX_ITER_CEILING, none=True)
-    initial: Any = option(None, object, "warm start: a Solution of the same discretisation", none=True, persist=False)
+    initial: Solution | None = option(None, Solution, "warm start: a Solution of the same discretisation", none=True,
+                                      persist=False)
     factorization: str = option("auto", str, "sparse factorisation of the metric G, or amg (iterative)",
                                 choices=("auto", *FACTORIZATIONS, "amg"))
     inner_rtol: float = option(1e-2, float, "amg: relative residual of each face solve of step (ii)",

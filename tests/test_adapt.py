@@ -59,6 +59,46 @@ def test_stops_when_the_next_mesh_would_overrun_the_time_limit(coarse_cylinder, 
     assert run.final.U_lower <= run.final.U_upper  # the final bracket is computed whatever stopped the loop
 
 
+def test_final_bracket_is_skipped_when_it_would_overrun_the_time_limit(coarse_cylinder, monkeypatch):
+    """`adapt --time-limit 10` on the 2D cylinder: the first mesh took 7 s, and the final
+    bracket (two more lower bounds) then 13 s more: 22 s in all. The bracket is now
+    skipped when twice the lower bound's time exceeds what is left (here the lower
+    bound is made to report 1e6 s), and the reason says so."""
+    bound = ad._bound
+
+    def slow_lower_bound(*args, **kwargs):
+        done = bound(*args, **kwargs)
+        return replace(done, row=replace(done.row, lower_seconds=1e6))
+
+    monkeypatch.setattr(ad, "_bound", slow_lower_bound)
+    monkeypatch.setattr(ad, "affordable_elements", lambda steps, seconds, bracket: steps[-1].n_elements)
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="final", time_limit=3600.0))
+    assert run.reason.startswith("time_limit") and "no U bracket: it would take about 2000000 s" in run.reason
+    assert math.isnan(run.final.U_lower) and math.isnan(run.final.U_upper)
+
+
+def test_uniform_comparison_is_skipped_when_its_first_mesh_would_overrun(tmp_path, monkeypatch, capsys):
+    """The uniform run starts from the same mesh as the adaptive one, which it always
+    bounds: with less time left than that mesh took (made to report 1e6 s), it is skipped."""
+    import json
+
+    from elastoplast.cli import main
+    from test_cli import write_toml
+
+    run_adapt = ad.adapt
+
+    def slow_first_mesh(*args, **kwargs):
+        run = run_adapt(*args, **kwargs)
+        return replace(run, steps=(replace(run.steps[0], seconds=1e6), *run.steps[1:]))
+
+    monkeypatch.setattr(ad, "adapt", slow_first_mesh)
+    problem = write_toml(tmp_path / "p.toml", cylinder_dict(divisions=(10, 5)))
+    code = main(["adapt", str(problem), "--rtol", "0.5", "--time-limit", "3600", "--out", str(tmp_path / "a"),
+                 "--quiet"])
+    assert code == 0 and "its first mesh took 1000000 s" in capsys.readouterr().out
+    assert json.loads((tmp_path / "a" / "adapt.json").read_text())["uniform"] is None
+
+
 def test_warm_start_gives_the_same_meshes_and_bounds(coarse_cylinder):
     """Newton from the interpolated previous solution converges to the same discrete
     solution (unique for H > 0), hence the same bounds and the same marking."""
@@ -192,8 +232,9 @@ def test_indicator_pictures_2d_and_3d(tmp_path, coarse_cylinder):
 
 
 def test_command_time_limit_bounds_the_uniform_comparison_too(tmp_path, capsys):
-    """The adaptive run spends a tiny --time-limit on its first mesh (and its U
-    bracket); nothing is left for the uniform comparison, which is skipped."""
+    """The adaptive run spends a tiny --time-limit on its first mesh; nothing is left
+    for the U bracket (two more lower bounds) or the uniform comparison: both are
+    skipped, and the reason says so."""
     import json
 
     from elastoplast.cli import main
@@ -205,7 +246,8 @@ def test_command_time_limit_bounds_the_uniform_comparison_too(tmp_path, capsys):
     assert code == 1 and "uniform refinement skipped" in out
     record = json.loads((tmp_path / "a" / "adapt.json").read_text())
     assert record["uniform"] is None and len(record["adaptive"]) == 1
-    assert record["reason"].startswith("time_limit")
+    assert record["reason"].startswith("time_limit") and "no U bracket" in record["reason"]
+    assert record["adaptive"][0]["U_lower"] is None
     assert (tmp_path / "a" / "indicator.png").stat().st_size > 0
 
 

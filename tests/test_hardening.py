@@ -333,3 +333,209 @@ def test_newton_starts_feasible_when_the_obstacle_starts_above_the_plane():
     newton, conic = ep.solve(disc, "newton"), ep.solve(disc, "conic")
     assert newton.converged and conic.converged
     assert newton.U == pytest.approx(conic.U, rel=1e-8)
+
+
+# ---------------------------------------------------------------------------
+# the later commands (bounds, limit, adapt, campaign [adapt]) and the Python API
+# ---------------------------------------------------------------------------
+
+
+def test_limit_with_a_tiny_time_limit_says_what_it_has(tmp_path, capsys):
+    """`limit --time-limit 1e-9` stopped the static program before any load: the
+    certificate then divided by a zero scale (exit 3, ZeroDivisionError). F_c >= 0
+    is all such a run shows: exit 1, F_lower = 0, not certified, strict JSON."""
+    from test_commands import half_punch, strict_json
+
+    problem = write_toml(tmp_path / "p.toml", half_punch())
+    code, line = run(capsys, "limit", problem, "--time-limit", "1e-9", "--out", tmp_path / "l", "--quiet")
+    assert code == 1, line
+    s = strict_json(tmp_path / "l" / "summary.json")
+    assert s["F_lower"] == 0.0 and s["lower_certified"] is False and s["certified"] is False
+    assert "no positive load" in s["message"]
+
+
+def test_sigterm_unwinds_like_ctrl_c(tmp_path):
+    """`timeout` or a batch scheduler sends SIGTERM: Python's default ended the process
+    on the spot and left the staged folder (`.a.tmp-*`) beside --out, which then made
+    the parent folder look foreign. Now exit 143, one line, nothing left behind."""
+    import signal
+    import subprocess
+    import sys
+
+    data = small_cylinder()
+    problem = write_toml(tmp_path / "p.toml", data)
+    work = tmp_path / "work"
+    work.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "elastoplast", "adapt", str(problem), "--rtol", "1e-6",
+                             "--out", str(work / "a"), "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            cwd=tmp_path, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list(work.glob(".a.tmp-*")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # the staged folder exists once the run is under way
+        assert proc.poll() is None, proc.communicate()[1]
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 143 and err.strip().splitlines()[-1] == "terminated", err
+    assert list(work.iterdir()) == []
+
+
+def test_option_of_the_wrong_type_is_refused(problem_file, tmp_path, capsys):
+    """`--option initial=1` (Uzawa's warm start takes a Solution) reached the solver:
+    exit 3, AttributeError. Now refused naming the option."""
+    code, line = run(capsys, "solve", problem_file, "--method", "uzawa", "--option", "initial=1", "--quiet",
+                     "--out", tmp_path / "o")
+    assert code == 2 and line.startswith("error: --option initial:") and "Solution" in line, line
+    with pytest.raises(ep.InputError) as exc:
+        ep.UzawaOptions(initial={"u": 1})
+    assert exc.value.field == "initial"
+
+
+def test_campaign_refuses_an_adaptive_target_with_h0_before_running(tmp_path):
+    """An `[adapt]` table on an H = 0 problem ran, and was stored as a failed case;
+    adapt cannot run it, so the point is refused when the campaign is loaded."""
+    from elastoplast.campaign import load_campaign
+    from test_commands import half_punch
+
+    write_toml(tmp_path / "p.toml", half_punch())
+    path = tmp_path / "c.toml"
+    path.write_text('[campaign]\nproblem = "p.toml"\n[adapt]\nrtol = 0.3\n[sweep]\n"load.force" = [100.0]\n')
+    with pytest.raises(ep.InputError) as exc:
+        load_campaign(path)
+    assert "material.hardening" in str(exc.value)
+
+
+def _api_calls(disc):
+    from elastoplast.adapt import adapt
+    from elastoplast.bounds import certified_bounds
+
+    return {
+        "with_force(-1)": (lambda: disc.with_force(-1.0), "load.force"),
+        "with_force(nan)": (lambda: disc.with_force(float("nan")), "load.force"),
+        "with_force(inf)": (lambda: disc.with_force(float("inf")), "load.force"),
+        "certified_bounds(solution='x')": (lambda: certified_bounds(disc, solution="x"), "solution"),
+        "certified_bounds(lower_options={'tol': 1})": (
+            lambda: certified_bounds(disc, lower_options={"tol": 1}, bracket=False), "lower_options.tol"),
+        "adapt(disc)": (lambda: adapt(disc), "problem"),
+        "adapt(problem, 'fast')": (lambda: adapt(disc.problem, "fast"), "options"),
+        "refine(None, [0])": (lambda: ep.refine(None, [0]), "mesh"),
+        # 2^40 children of one triangle: was allocated until the machine killed the process
+        "refine(mesh, [0], bisections=40)": (lambda: ep.refine(disc.mesh, [0], bisections=40), "bisections"),
+        # wrapped around in an int16 counter: the mesh came back unrefined, silently
+        "refine(mesh, [0], bisections=10**9)": (lambda: ep.refine(disc.mesh, [0], bisections=10**9), "bisections"),
+        "discretize(dict)": (lambda: ep.discretize({"mesh": {}}), "problem"),
+        "load_problem(None)": (lambda: ep.load_problem(None), "problem"),
+        "read_mesh(None)": (lambda: ep.read_mesh(None), "mesh.file"),
+        "read_toml(5)": (lambda: ep.problem.read_toml(5), "problem"),
+        "solve_lower_bound(disc.problem)": (lambda: ep.solve_lower_bound(disc.problem), "disc"),
+    }
+
+
+@pytest.mark.parametrize("name", list(_api_calls(None)))
+def test_python_entry_points_refuse_bad_arguments_naming_them(small_disc, name):
+    """Each of these raised TypeError, ValueError or AttributeError from deep inside
+    (or, for with_force, was accepted and solved into a FAILED answer)."""
+    call, field = _api_calls(small_disc)[name]
+    with pytest.raises(ep.InputError) as exc:
+        call()
+    assert exc.value.field == field, exc.value
+
+
+def test_python_entry_points_take_options_as_mappings():
+    """One option path: a mapping is checked like an options object (was AttributeError)."""
+    from elastoplast.limit import kinematic_limit_load
+
+    punch = build(__import__("test_commands").half_punch())
+    with pytest.raises(ep.InputError) as exc:
+        kinematic_limit_load(punch, {"order": 3})
+    assert exc.value.field == "options.order"
+    assert kinematic_limit_load(punch, {"order": 1}).order == 1
+
+
+def test_limit_refuses_a_mesh_too_large_before_the_kinematic_program(tmp_path, capsys, monkeypatch):
+    """A 3D box of 192,000 tetrahedra with H = 0: the kinematic (P2) program ran first and
+    allocated until the process aborted (`memory allocation failed`, exit 134); 12,288
+    ran past a 20 s --time-limit for minutes. The static program's size limit (Clarabel,
+    8,000 tetrahedra) now refuses the mesh before either program runs."""
+    from elastoplast import limit
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("the kinematic program ran before the size check")
+
+    monkeypatch.setattr(limit, "kinematic_limit_load", must_not_run)
+    data = {"mesh": {"generator": "box", "size": [12.0, 12.0, 6.0], "divisions": [16, 16, 6], "contact_radius": 4.5},
+            "material": {"E": 200000.0, "nu": 0.3, "yield_stress": 1500.0, "hardening": 0.0},
+            "obstacle": {"shape": "sphere", "radius": 40.0}, "load": {"force": 7330.0}}
+    code, line = run(capsys, "limit", write_toml(tmp_path / "p.toml", data), "--out", tmp_path / "l", "--quiet")
+    assert code == 2 and line.startswith("error: mesh:") and "9,216 elements" in line, line
+    assert not (tmp_path / "l").exists()
+
+
+def test_output_folder_has_the_permissions_of_a_new_folder(problem_file, tmp_path, capsys):
+    """The staged folder came from mkdtemp (mode 0700), so every output folder was
+    unreadable to the user's group, unlike one made by mkdir; now it follows the umask."""
+    import os
+
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert main(["solve", str(problem_file), "--quiet", "--out", str(tmp_path / "o")]) == 0
+    assert (tmp_path / "o").stat().st_mode & 0o777 == 0o777 & ~umask
+
+
+def test_full_disk_names_out_and_keeps_the_earlier_output(problem_file, tmp_path, capsys, monkeypatch):
+    """Writing the output on a full disk was an 'internal error' (exit 3, OSError): it is
+    the place written to, named like any other bad --out, and the earlier output stays."""
+    import errno
+
+    out = tmp_path / "o"
+    assert main(["solve", str(problem_file), "--quiet", "--out", str(out)]) == 0
+    before = sorted(p.name for p in out.iterdir())
+    capsys.readouterr()
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(ep.output, "write_vtu", full)
+    code, line = run(capsys, "solve", problem_file, "--quiet", "--out", out)
+    assert code == 2 and line.startswith("error: --out:") and "No space left" in line, line
+    assert sorted(p.name for p in out.iterdir()) == before
+    assert [p.name for p in tmp_path.iterdir() if ".tmp-" in p.name] == []
+
+
+def test_closed_stdout_is_not_an_internal_error(problem_file, tmp_path):
+    """`elastoplast solve ... | head -c 0`: printing the report raised BrokenPipeError,
+    reported as an internal error (exit 3). The files are written: exit 141, as the
+    shell gives for SIGPIPE, and nothing on stderr."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "elastoplast", "solve", str(problem_file), "--quiet", "--out",
+                             str(tmp_path / "o")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path)
+    proc.stdout.close()  # the reader has gone before anything was printed
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    assert proc.wait(timeout=60) == 141 and err == "", err
+    assert (tmp_path / "o" / "summary.json").exists()
+
+
+def test_adapt_uses_or_names_the_files_solver_table(tmp_path, capsys):
+    """adapt dropped the file's [solver] options silently (tol = 1e-12 ran at 1e-8,
+    max_iter = 3 vanished). Now tol is the P1 tolerance (checked against adapt's range,
+    named solver.tol) and the others are named in a warning."""
+    data = small_cylinder()
+    data["mesh"]["divisions"] = [10, 5]
+    data["solver"] = {"tol": 1e-12, "max_iter": 3}
+    out = tmp_path / "a"
+    code = main(["adapt", str(write_toml(tmp_path / "p.toml", data)), "--rtol", "0.5", "--no-uniform", "--quiet",
+                 "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0 and "warning: solver.max_iter: not used by adapt" in err, err
+    assert json.loads((out / "adapt.json").read_text())["options"]["tol"] == 1e-12
+    data["solver"] = {"tol": 1e-3}
+    code, line = run(capsys, "adapt", write_toml(tmp_path / "q.toml", data), "--quiet", "--out", tmp_path / "b")
+    assert code == 2 and line.startswith("error: solver.tol:"), line
+    assert not (tmp_path / "b").exists()

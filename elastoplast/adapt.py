@@ -205,10 +205,14 @@ def _lower_options(options: AdaptOptions):
 
 
 def lower_bound_limit(dim: int, options: AdaptOptions) -> int:
-    """The largest mesh the lower bound accepts with these options."""
-    from .equilibrium import LOWER_BOUND_MAX_ELEMENTS
+    """The largest mesh the lower bound accepts with these options and whose programs,
+    run one after another in this process, fit in the memory available
+    (:func:`~elastoplast.equilibrium.lower_bound_fits`)."""
+    from .equilibrium import LOWER_BOUND_MAX_ELEMENTS, lower_bound_fits
 
-    return options.lower_max_elements or LOWER_BOUND_MAX_ELEMENTS[dim]
+    largest = options.lower_max_elements or LOWER_BOUND_MAX_ELEMENTS[dim]
+    fits = lower_bound_fits(dim)
+    return largest if fits is None else max(1, min(largest, fits))
 
 
 def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solution, Solution | None] | None,

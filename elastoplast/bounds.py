@@ -421,21 +421,24 @@ def conservative_discretization(disc: Discretization) -> Discretization:
 
 def best_upper_bound(disc: Discretization, solution, method: str = "conic", conservative: bool = True,
                      **options) -> UpperBound:
-    """The upper bound of ``solution`` and, with ``conservative``, of the solution of
-    :func:`conservative_discretization` (solved by ``method``): the smaller Pi counts,
-    both being bounds."""
+    """The smallest of the upper bounds of ``solution``, with ``conservative`` of the
+    solution of :func:`conservative_discretization` (solved by ``method``), and of
+    the body at rest ``(v, V) = (0, 0)`` (corrected like any candidate, so it is
+    admissible whatever ψ): each is a bound, a certified one counts before one that
+    is not. The body at rest wins only when the P1 candidates are poor (a coarse
+    mesh or a solve cut short), whose energy can exceed the unloaded body's."""
     from .solvers import solve
 
-    upper = upper_bound(disc, solution)
+    candidates = [upper_bound(disc, solution)]
     safe = conservative_discretization(disc) if conservative else disc
     if conservative and not np.array_equal(safe.psi, disc.psi):  # a flat obstacle needs no allowance
         other_sol = solve(safe, method, **options)
-        if not other_sol.converged:  # the problem's own solution's bound stands
-            return upper
-        other = upper_bound(disc, other_sol)
-        if other.Pi < upper.Pi and (other.certified or not upper.certified):
-            upper = replace(other, message=f"{other.message}; from the solution with the conservative obstacle")
-    return upper
+        if other_sol.converged:  # else the problem's own solution's bound stands
+            other = upper_bound(disc, other_sol)
+            candidates.append(replace(other, message=f"{other.message}; from the solution with the conservative obstacle"))
+    rest = upper_bound(disc, (np.zeros((disc.mesh.n_nodes, disc.dim)), 0.0))
+    candidates.append(replace(rest, message=f"{rest.message}; the body at rest (no P1 candidate did better)"))
+    return min(candidates, key=lambda c: (not c.certified, c.Pi))
 
 
 def energy_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,

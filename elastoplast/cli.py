@@ -210,14 +210,15 @@ def _solve(args: argparse.Namespace) -> int:
 
 def _bounds(args: argparse.Namespace) -> int:
     from .bounds import certified_bounds, gap_fields
-    from .equilibrium import LowerBoundOptions, check_lower_bound_size
+    from .equilibrium import SEQUENCE_MEMORY_FACTOR, LowerBoundOptions, check_lower_bound_size
     from .output import write_results
     from .solution import Status
     from .solvers import check_solvable, solve
 
     path, data, method, opts = _setup(args)
     disc = _discretize(path, data, args.quiet, f"P1 solution by {method}, then the bounds")
-    check_lower_bound_size(disc, LowerBoundOptions())  # before the solve
+    # before the solve; the U bracket runs two more programs in this process
+    check_lower_bound_size(disc, LowerBoundOptions(), factor=1.0 if args.no_bracket else SEQUENCE_MEMORY_FACTOR)
     check_solvable(disc, method, opts)
     sol = solve(disc, method, opts)
     if sol.status is Status.INFEASIBLE:

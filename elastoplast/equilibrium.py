@@ -893,12 +893,41 @@ class _Setup:
 LOWER_BOUND_MAX_ELEMENTS = {2: 100_000, 3: 25_000}
 #: the same with Clarabel (the limit-load program, or ``solver="clarabel"``): 3D 8,000
 CLARABEL_MAX_ELEMENTS = {2: 100_000, 3: 8_000}
+#: peak resident memory of one lower-bound program per element (bytes), from the largest
+#: measured peaks less the process's ~0.1 GB base, with a margin for growth: Clarabel 2D
+#: 34 kB at 25,600 triangles (benchmarks/bounds/README.md), 3D 120 kB at 1,080 and 153 kB
+#: at 3,072 tetrahedra (its fill grows faster than N); SCS 3D 151 kB at 3,072, 179 kB at
+#: 12,288 and 202 kB at 24,576 tetrahedra (5.06 GB; benchmarks/bounds/solvers.md and the
+#: README). A U bracket runs two more programs one after another: its peak was 1.8x one
+#: program's (9.0 GB at 24,576 tetrahedra).
+LOWER_BOUND_BYTES_PER_ELEMENT = {2: 45_000, 3: 250_000}
+#: the peak of several programs run one after another in one process (the U bracket,
+#: the adaptive loop) over one program's: measured 1.8 (above)
+SEQUENCE_MEMORY_FACTOR = 2.0
 
 
-def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, limit: bool = False) -> None:
+def lower_bound_bytes(dim: int, n_elements: int) -> int:
+    """Estimated peak memory of one lower-bound program on ``n_elements`` elements."""
+    return int(LOWER_BOUND_BYTES_PER_ELEMENT[dim]) * int(n_elements)
+
+
+def lower_bound_fits(dim: int, factor: float = SEQUENCE_MEMORY_FACTOR) -> int | None:
+    """The most elements whose lower-bound programs (``factor`` times the estimate of
+    one) fit in the memory available now (:func:`elastoplast.checks.available_memory`),
+    or None where that is unknown."""
+    from .checks import available_memory
+
+    limit, _ = available_memory()
+    return None if limit is None else int(limit // (factor * LOWER_BOUND_BYTES_PER_ELEMENT[dim]))
+
+
+def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, limit: bool = False,
+                           factor: float = 1.0) -> None:
     """Refuse a mesh the lower-bound program cannot finish (``options.max_elements``, or
     :data:`LOWER_BOUND_MAX_ELEMENTS` and with Clarabel :data:`CLARABEL_MAX_ELEMENTS`),
-    naming the size; ``limit`` for the limit-load program."""
+    naming the size, or whose program would not fit in memory
+    (:func:`lower_bound_bytes`, times ``factor`` for several programs in a row), with the
+    estimate; ``limit`` for the limit-load program."""
     solver = lower_bound_solver(disc, options, limit)
     largest = options.max_elements or (CLARABEL_MAX_ELEMENTS if solver == "clarabel" else LOWER_BOUND_MAX_ELEMENTS)[disc.dim]
     if disc.n_elements > largest:
@@ -906,6 +935,11 @@ def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, lim
                                  f"limited to {largest:,} in {disc.dim}D (its cost grows fast, see "
                                  "benchmarks/bounds/solvers.md); coarsen the mesh, let 'elastoplast adapt' place the elements, "
                                  "or raise the limit with the lower bound's max_elements option")
+    from .checks import check_memory
+
+    check_memory(int(factor * lower_bound_bytes(disc.dim, disc.n_elements)), "mesh",
+                 f"the equilibrium-element lower bound with {solver} ({disc.n_elements:,} elements)",
+                 "coarsen the mesh, or let 'elastoplast adapt' place the elements")
 
 
 def _setup(disc: Discretization, options: LowerBoundOptions, force: float | None = None, limit: bool = False) -> _Setup:

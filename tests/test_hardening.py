@@ -539,3 +539,30 @@ def test_adapt_uses_or_names_the_files_solver_table(tmp_path, capsys):
     code, line = run(capsys, "adapt", write_toml(tmp_path / "q.toml", data), "--quiet", "--out", tmp_path / "b")
     assert code == 2 and line.startswith("error: solver.tol:"), line
     assert not (tmp_path / "b").exists()
+
+
+def test_lower_bound_that_cannot_fit_in_memory_is_refused_before_the_solve(problem_file, tmp_path, capsys,
+                                                                            monkeypatch, small_disc):
+    """The lower-bound programs had no memory estimate: a mesh within the size limit but
+    beyond the machine's memory was killed mid-program. The estimate is
+    LOWER_BOUND_BYTES_PER_ELEMENT per element (x SEQUENCE_MEMORY_FACTOR with the U
+    bracket, two more programs in the same process); 2 MB cannot hold the 400-triangle
+    program (18 MB), so `bounds` refuses before the P1 solve and writes nothing."""
+    from elastoplast.adapt import AdaptOptions, lower_bound_limit
+    from elastoplast.checks import MEMORY_ENV
+    from elastoplast.equilibrium import (LOWER_BOUND_BYTES_PER_ELEMENT, SEQUENCE_MEMORY_FACTOR, LowerBoundOptions,
+                                         solve_lower_bound)
+    from elastoplast.errors import InputError
+
+    monkeypatch.setenv(MEMORY_ENV, "2M")
+    code, line = run(capsys, "bounds", problem_file, "--quiet", "--out", tmp_path / "b")
+    assert code == 2 and line.startswith("error: mesh:") and "lower bound" in line and "needs about" in line, line
+    assert "2 MiB available" in line and f"{MEMORY_ENV}=2M" in line, line
+    assert not (tmp_path / "b").exists()
+    with pytest.raises(InputError) as info:
+        solve_lower_bound(small_disc, LowerBoundOptions())
+    assert info.value.field == "mesh"
+    # the adaptive loop plans its meshes under the same estimate (several programs in one process)
+    assert lower_bound_limit(2, AdaptOptions()) == 2 * 2**20 // int(SEQUENCE_MEMORY_FACTOR * LOWER_BOUND_BYTES_PER_ELEMENT[2])
+    monkeypatch.setenv(MEMORY_ENV, "1T")
+    assert lower_bound_limit(2, AdaptOptions(lower_max_elements=500)) == 500

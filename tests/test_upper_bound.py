@@ -250,6 +250,24 @@ def test_corrections_are_admissible_and_best_is_smallest(small_cases):
     assert ub.penetration <= 1e-12 * abs(cons.U)
 
 
+def test_best_upper_bound_falls_back_on_the_body_at_rest(small_cases):
+    """Any admissible pair bounds Pi*; the body at rest (0, 0), corrected like any
+    candidate, is one: W >= 0 and V <= 0, so its Pi >= 0 (here small: the facet rule
+    lifts the nodes near the cylinder's touching point by k r²/2). A poor candidate
+    (the P1 solution pushed three times too far, whose energy exceeds the body at
+    rest's) loses to it; the P1 solution itself (Pi < 0) wins."""
+    disc, upper, _, sol = small_cases["2d"]
+    assert upper.Pi < 0.0
+    rest = bd.upper_bound(disc, (np.zeros((disc.mesh.n_nodes, disc.dim)), 0.0))
+    assert rest.certified and rest.Pi >= 0.0 and rest.V <= 0.0
+    poor = bd.upper_bound(disc, (3.0 * sol.u, 3.0 * sol.U))
+    assert poor.certified and poor.Pi > rest.Pi
+    best = bd.best_upper_bound(disc, (3.0 * sol.u, 3.0 * sol.U), conservative=False)
+    assert best.certified and best.Pi == rest.Pi and "body at rest" in best.message
+    good = bd.best_upper_bound(disc, sol, conservative=False)
+    assert good.Pi == upper.Pi and "body at rest" not in good.message
+
+
 def test_lower_bounds_never_exceed_upper_bounds_across_meshes(small_cases):
     disc_a, up_a, low_a, _ = small_cases["2d"]
     disc_b = build(cylinder_dict(divisions=(30, 15)))

@@ -204,35 +204,40 @@ def _lower_options(options: AdaptOptions):
     return LowerBoundOptions(max_elements=options.lower_max_elements)
 
 
-def lower_bound_limit(dim: int, options: AdaptOptions) -> int:
-    """The largest mesh the lower bound accepts with these options and whose programs,
-    run one after another in this process, fit in the memory available
-    (:func:`~elastoplast.equilibrium.lower_bound_fits`)."""
+def lower_bound_budget(dim: int, options: AdaptOptions) -> tuple[str, int]:
+    """``(what limits it, elements)``: the largest mesh the lower bound accepts with
+    these options and whose programs, run one after another in this process, fit in
+    the memory available (:func:`~elastoplast.equilibrium.lower_bound_fits`)."""
     from .equilibrium import LOWER_BOUND_MAX_ELEMENTS, lower_bound_fits
 
     largest = options.lower_max_elements or LOWER_BOUND_MAX_ELEMENTS[dim]
     fits = lower_bound_fits(dim)
-    return largest if fits is None else max(1, min(largest, fits))
+    if fits is not None and fits < largest:
+        return "the memory available to the lower bound", max(1, fits)
+    return "the lower bound's size limit", largest
+
+
+def lower_bound_limit(dim: int, options: AdaptOptions) -> int:
+    """The elements of :func:`lower_bound_budget`."""
+    return lower_bound_budget(dim, options)[1]
 
 
 def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solution, Solution | None] | None,
            bracket: bool) -> _Bounded:
     """Solve and bound one mesh (the upper bound of :func:`~elastoplast.bounds.best_upper_bound`
     with warm-started solves, the lower bound, their local gaps)."""
-    from .bounds import combine, upper_bound
+    from .bounds import combine, smallest_upper_bound
     from .equilibrium import solve_lower_bound
 
     t0 = time.perf_counter()
     disc = discretize(problem)
     sol = _solve(disc, options, None if start is None else start[0])
-    upper, cons = upper_bound(disc, sol), None
+    cons = None
     cdisc = conservative_discretization(disc)
     if not np.array_equal(cdisc.psi, disc.psi):  # a flat obstacle needs no allowance: nothing to solve again
         # only a candidate: if its solve fails, the problem's own solution bounds alone
         cons = _solve(cdisc, options, None if start is None else start[1], required=False)
-        other = None if cons is None else upper_bound(disc, cons)
-        if other is not None and other.Pi < upper.Pi and (other.certified or not upper.certified):
-            upper = other
+    upper = smallest_upper_bound(disc, sol, cons)  # as bounds.best_upper_bound, with warm-started solves
     t1 = time.perf_counter()
     lower = solve_lower_bound(disc, _lower_options(options))
     t2 = time.perf_counter()
@@ -369,12 +374,23 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
     mesh, state, start = problem.mesh, None, None
     steps: list[Step] = []
     meshes: list[Mesh] = []
-    lower_limit = lower_bound_limit(problem.dim, options)
+    lower_name, lower_limit = lower_bound_budget(problem.dim, options)
+    if mesh.n_elements > lower_limit:  # before any work (the next meshes are planned under it)
+        raise InputError("mesh", f"{mesh.n_elements:,} elements: above {lower_name} ({lower_limit:,} elements for "
+                                 "its programs in a row); start from a coarser mesh")
     final_bracket = options.bracket == "final"
     reason = f"max_iter = {options.max_iter} meshes solved"
     for k in range(options.max_iter):
         t0 = time.perf_counter()
-        done = _bound(replace(problem, mesh=mesh), options, k, start, bracket=options.bracket == "every")
+        try:
+            bounded = _bound(replace(problem, mesh=mesh), options, k, start, bracket=options.bracket == "every")
+        except InputError as exc:  # memory taken by others since the plan: keep what was done
+            if exc.field != "mesh" or not steps:
+                raise
+            reason = (f"the lower bound refused the next mesh ({exc.message}); the run ends at the previous mesh, "
+                      "without its U bracket")
+            break
+        done = bounded
         meshes.append(mesh)
         row = done.row
         stop = None
@@ -387,7 +403,7 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
             stop = f"time_limit {options.time_limit:g} s reached"
         if stop is None:
             eta = element_indicators(done.disc, done.bounds)
-            budgets = {"max_elements": options.max_elements, "the lower bound's size limit": lower_limit}
+            budgets = {"max_elements": options.max_elements, lower_name: lower_limit}
             if options.time_limit is not None:
                 left = options.time_limit - elapsed
                 budgets["time_limit"] = affordable_elements(steps + [row], left, options.bracket != "never")
@@ -465,8 +481,9 @@ def elements_at_gap(steps: tuple[Step, ...] | list[Step], gap: float) -> float:
 
 
 __all__ = ["AdaptOptions", "AdaptResult", "Step", "adapt", "affordable_elements", "bound_mesh", "draw_indicator",
-           "elements_at_gap", "fitted_rate", "lower_bound_limit", "plot_gap_curves", "plot_indicator",
-           "predicted_seconds", "run_adapt_command", "slice_polygons", "uniform", "with_bracket", "zoom_window"]
+           "elements_at_gap", "fitted_rate", "lower_bound_budget", "lower_bound_limit", "plot_gap_curves",
+           "plot_indicator", "predicted_seconds", "run_adapt_command", "slice_polygons", "uniform", "with_bracket",
+           "zoom_window"]
 
 
 # ----------------------------------------------------------------------------

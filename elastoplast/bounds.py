@@ -35,6 +35,8 @@ The U bracket (:func:`u_bracket`) uses the concavity of ``Pi*`` in F.
 
 from __future__ import annotations
 
+import math
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
@@ -419,26 +421,36 @@ def conservative_discretization(disc: Discretization) -> Discretization:
     return replace(disc, psi=disc.psi - allowance[disc.contact_nodes])
 
 
-def best_upper_bound(disc: Discretization, solution, method: str = "conic", conservative: bool = True,
-                     **options) -> UpperBound:
-    """The smallest of the upper bounds of ``solution``, with ``conservative`` of the
-    solution of :func:`conservative_discretization` (solved by ``method``), and of
-    the body at rest ``(v, V) = (0, 0)`` (corrected like any candidate, so it is
-    admissible whatever ψ): each is a bound, a certified one counts before one that
-    is not. The body at rest wins only when the P1 candidates are poor (a coarse
-    mesh or a solve cut short), whose energy can exceed the unloaded body's."""
-    from .solvers import solve
-
+def smallest_upper_bound(disc: Discretization, solution, conservative_solution=None) -> UpperBound:
+    """The smallest of the upper bounds of ``solution``, of ``conservative_solution``
+    (a solution of :func:`conservative_discretization`, when given) and of the body at
+    rest ``(v, V) = (0, 0)``, corrected like any candidate, so admissible whatever ψ.
+    Each is a bound; a certified one ranks before one that is not, whatever their
+    values. The body at rest wins only when the P1 candidates are poor (a coarse mesh
+    or a solve cut short), whose energy can exceed the unloaded body's."""
     candidates = [upper_bound(disc, solution)]
-    safe = conservative_discretization(disc) if conservative else disc
-    if conservative and not np.array_equal(safe.psi, disc.psi):  # a flat obstacle needs no allowance
-        other_sol = solve(safe, method, **options)
-        if other_sol.converged:  # else the problem's own solution's bound stands
-            other = upper_bound(disc, other_sol)
-            candidates.append(replace(other, message=f"{other.message}; from the solution with the conservative obstacle"))
+    if conservative_solution is not None:
+        other = upper_bound(disc, conservative_solution)
+        candidates.append(replace(other, message=f"{other.message}; from the solution with the conservative obstacle"))
     rest = upper_bound(disc, (np.zeros((disc.mesh.n_nodes, disc.dim)), 0.0))
     candidates.append(replace(rest, message=f"{rest.message}; the body at rest (no P1 candidate did better)"))
     return min(candidates, key=lambda c: (not c.certified, c.Pi))
+
+
+def best_upper_bound(disc: Discretization, solution, method: str = "conic", conservative: bool = True,
+                     **options) -> UpperBound:
+    """:func:`smallest_upper_bound` of ``solution`` and, with ``conservative``, of the
+    solution of :func:`conservative_discretization` solved by ``method`` (left out when
+    that solve does not converge, or for a flat obstacle, which needs no allowance)."""
+    from .solvers import solve
+
+    other_sol = None
+    safe = conservative_discretization(disc) if conservative else disc
+    if conservative and not np.array_equal(safe.psi, disc.psi):  # a flat obstacle needs no allowance
+        other_sol = solve(safe, method, **options)
+        if not other_sol.converged:  # the problem's own solution's bound stands
+            other_sol = None
+    return smallest_upper_bound(disc, solution, other_sol)
 
 
 def energy_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
@@ -619,7 +631,13 @@ def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
     # themselves, so that (round-off of J) / delta stays far below the bracket's width
     gap = max(b.energy_gap, GAP_FLOOR * abs(b.energy_upper))
     delta = choose_delta(F, gap, U_h / F if U_h > 0 else 0.0)
-    minus = solve_lower_bound(disc.with_force(F - delta), lower_options)
+    try:
+        minus = solve_lower_bound(disc.with_force(F - delta), lower_options)
+    except InputError as exc:  # memory taken since the first program was checked: no bracket, said so
+        if exc.field != "mesh":
+            raise
+        warnings.warn(f"no U bracket: {exc.message}")
+        return math.nan, math.nan, (delta, delta), False
     # with H = 0, F + delta may lie above the mesh's static limit load (no admissible
     # field there): each side's secant holds for its own delta, so shrink that one
     plus, delta_plus = None, delta
@@ -628,6 +646,9 @@ def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
             plus = solve_lower_bound(disc.with_force(F + delta_plus), lower_options)
             break
         except InputError as exc:
+            if exc.field == "mesh":
+                warnings.warn(f"no U bracket: {exc.message}")
+                return math.nan, math.nan, (delta, delta_plus), False
             if exc.field != "load.force":
                 raise
             delta_plus /= 4.0

@@ -6,8 +6,9 @@ Exit codes: 0 solved and certified, 1 the solver did not converge (the status
 says why; files are still written), 2 bad input (one line naming the field),
 3 an internal error (a bug: one line; ``ELASTOPLAST_DEBUG=1`` shows the
 traceback), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM: ``timeout``, a batch
-scheduler); an interrupted or terminated run leaves no staged output behind; 141 when
-stdout was closed by its reader (the output files are written).
+scheduler; it takes effect when Python regains control, after a native solver call in
+progress); an interrupted or terminated run leaves no staged output behind; 141 when
+stdout was closed by its reader (the run goes on and its output files are written).
 
 Every solver option reaches the method through one path
 (:func:`elastoplast.solvers.method_options`): ``--tol``, ``--max-iter``,
@@ -345,7 +346,49 @@ class Terminated(BaseException):
 
 
 def _raise_terminated(signum, frame):
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not interrupt the unwinding
     raise Terminated()
+
+
+class _GuardedStdout:
+    """``sys.stdout`` whose reader may go away (``elastoplast ... | head``): the first
+    ``BrokenPipeError`` sends the rest to ``os.devnull`` and the command carries on, so
+    a run still inside its staged output folder writes its files; ``broken`` says so."""
+
+    def __init__(self, stream):
+        self._stream, self.broken = stream, False
+
+    def _gone(self) -> None:
+        self.broken = True
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), self._stream.fileno())
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._gone()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._gone()
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def _guarded_stdout():
+    guard = _GuardedStdout(sys.stdout)
+    sys.stdout = guard
+    try:
+        yield guard
+    finally:
+        if sys.stdout is guard:
+            sys.stdout = guard._stream
 
 
 @contextlib.contextmanager
@@ -363,12 +406,13 @@ def _sigterm_unwinds():
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code instead of raising for bad input."""
-    with warnings.catch_warnings(), _sigterm_unwinds():
+    with warnings.catch_warnings(), _sigterm_unwinds(), _guarded_stdout() as out:
         warnings.simplefilter("always")
         warnings.showwarning = lambda msg, *a, **k: print(f"warning: {msg}", file=sys.stderr)
         try:
             args = build_parser().parse_args(argv)
-            return COMMANDS[args.command](args)
+            code = COMMANDS[args.command](args)
+            return EXIT_BROKEN_PIPE if out.broken else code
         except InputError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_INPUT

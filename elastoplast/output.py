@@ -136,6 +136,20 @@ def check_output_dir(out_dir: str | Path, field: str = "out") -> Path:
     return out
 
 
+def current_umask() -> int:
+    """The process's umask, read without changing it (``/proc/self/status``; where
+    that is missing, set and restored at once, which other threads could see)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return umask
+
+
 @contextlib.contextmanager
 def staged_output(out_dir: str | Path, field: str = "out") -> Iterator[Path]:
     """A fresh folder to write a run's files into, put in place of ``out_dir`` at the end.
@@ -152,9 +166,7 @@ def staged_output(out_dir: str | Path, field: str = "out") -> Iterator[Path]:
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
-        umask = os.umask(0o022)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)  # mkdtemp's 0700 would keep the results from the user's group
+        os.chmod(tmp, 0o777 & ~current_umask())  # mkdtemp's 0700 would keep the results from the user's group
     except OSError as exc:
         raise InputError(field, f"cannot create {out_dir}: {exc.strerror}") from None
     try:
@@ -169,7 +181,9 @@ def staged_output(out_dir: str | Path, field: str = "out") -> Iterator[Path]:
             os.replace(tmp, out)
     except OSError as exc:
         shutil.rmtree(tmp, ignore_errors=True)
-        if exc.errno in WRITE_TARGET_ERRORS:  # the place, not the program: name it
+        # the place, not the program: name it (unless the error names a file elsewhere)
+        elsewhere = exc.filename is not None and not Path(exc.filename).absolute().is_relative_to(out.parent)
+        if exc.errno in WRITE_TARGET_ERRORS and not elsewhere:
             raise InputError(field, f"cannot write {out_dir}: {exc.strerror}") from None
         raise
     except BaseException:

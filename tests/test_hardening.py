@@ -566,3 +566,69 @@ def test_lower_bound_that_cannot_fit_in_memory_is_refused_before_the_solve(probl
     assert lower_bound_limit(2, AdaptOptions()) == 2 * 2**20 // int(SEQUENCE_MEMORY_FACTOR * LOWER_BOUND_BYTES_PER_ELEMENT[2])
     monkeypatch.setenv(MEMORY_ENV, "1T")
     assert lower_bound_limit(2, AdaptOptions(lower_max_elements=500)) == 500
+
+
+def test_adapt_with_closed_stdout_still_writes_its_files(tmp_path):
+    """`elastoplast adapt ... | head -c 0`: adapt prints its steps while its files are
+    still staged; the BrokenPipeError removed the staged folder, so nothing was written
+    for a run that had finished. Now stdout goes to devnull from the first broken write,
+    the run goes on: exit 141 and the output is in place."""
+    import subprocess
+    import sys
+
+    data = small_cylinder()
+    data["mesh"]["divisions"] = [10, 5]
+    problem = write_toml(tmp_path / "p.toml", data)
+    proc = subprocess.Popen([sys.executable, "-m", "elastoplast", "adapt", str(problem), "--rtol", "0.2", "--no-uniform",
+                             "--bracket", "never", "--quiet", "--out", str(tmp_path / "a")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path)
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    assert proc.wait(timeout=120) == 141, err
+    assert (tmp_path / "a" / "summary.json").exists() and (tmp_path / "a" / "adapt.json").exists()
+
+
+def test_adapt_plans_under_memory_and_keeps_its_steps_when_refused_mid_run(monkeypatch):
+    """A start mesh whose lower-bound programs (x SEQUENCE_MEMORY_FACTOR, several in one
+    process) cannot fit is refused before any work, naming the memory; a refusal of a
+    later mesh (memory taken by others since the plan) ends the run at the previous
+    mesh instead of losing every step; the U bracket of a refused program is NaN."""
+    import warnings
+
+    from elastoplast import adapt as ad
+    from elastoplast import bounds as bd
+    from elastoplast import equilibrium as eq
+    from elastoplast.checks import MEMORY_ENV
+    from elastoplast.errors import InputError
+
+    data = small_cylinder()
+    data["mesh"]["divisions"] = [10, 5]  # 100 triangles: 4.5 MB for one program, 9 MB in a row
+    problem = ep.problem_from_dict(data, base_dir=PROBLEMS)
+    monkeypatch.setenv(MEMORY_ENV, "6M")
+    assert ad.lower_bound_budget(2, ad.AdaptOptions())[0] == "the memory available to the lower bound"
+    with pytest.raises(InputError) as info:
+        ad.adapt(problem, ad.AdaptOptions(rtol=0.01, bracket="never", compare_uniform=False))
+    assert info.value.field == "mesh" and "memory" in info.value.message
+    monkeypatch.delenv(MEMORY_ENV)
+    real, calls = eq.solve_lower_bound, []
+
+    def refuse_the_second(disc, options=None):
+        calls.append(disc.n_elements)
+        if len(calls) == 2:
+            raise InputError("mesh", "the equilibrium-element lower bound needs about 9 GiB, more than the 1 GiB available")
+        return real(disc, options)
+
+    monkeypatch.setattr(eq, "solve_lower_bound", refuse_the_second)
+    run = ad.adapt(problem, ad.AdaptOptions(rtol=1e-6, bracket="never", compare_uniform=False))
+    assert len(run.steps) == 1 and len(run.meshes) == 1 and "refused the next mesh" in run.reason
+    assert run.disc.n_elements == 100 and run.bounds.bounds_certified
+    calls.clear()
+    calls.append(0)  # the next call is refused: the bracket's first program
+    disc = build(data)
+    b = bd.combine(bd.upper_bound(disc, ep.solve(disc, "newton")), real(disc))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        lo, hi, _, certified = bd.u_bracket_of(disc, b, 0.04)
+    assert math.isnan(lo) and math.isnan(hi) and not certified
+    assert any("no U bracket" in str(w.message) for w in caught)

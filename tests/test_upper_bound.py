@@ -268,6 +268,23 @@ def test_best_upper_bound_falls_back_on_the_body_at_rest(small_cases):
     assert good.Pi == upper.Pi and "body at rest" not in good.message
 
 
+def test_the_smallest_of_three_candidates_counts(small_cases):
+    """smallest_upper_bound ranks the problem's solution, the conservative solution and
+    the body at rest by Pi (all three certified here): with the poor candidate in
+    first place, the conservative solution (a good P1 field) wins, as it would alone;
+    best_upper_bound with conservative=True is the same ranking after its own solve."""
+    disc, _, _, sol = small_cases["2d"]
+    poor = (3.0 * sol.u, 3.0 * sol.U)
+    cons = ep.solve(bd.conservative_discretization(disc), "conic")
+    alone = {name: bd.upper_bound(disc, c) for name, c in (("poor", poor), ("cons", cons),
+                                                          ("rest", (np.zeros((disc.mesh.n_nodes, 2)), 0.0)))}
+    assert all(ub.certified for ub in alone.values())
+    assert alone["cons"].Pi < alone["rest"].Pi < alone["poor"].Pi
+    best = bd.smallest_upper_bound(disc, poor, cons)
+    assert best.Pi == alone["cons"].Pi and "conservative obstacle" in best.message
+    assert bd.best_upper_bound(disc, poor, method="conic").Pi == pytest.approx(alone["cons"].Pi, rel=1e-9)
+
+
 def test_lower_bounds_never_exceed_upper_bounds_across_meshes(small_cases):
     disc_a, up_a, low_a, _ = small_cases["2d"]
     disc_b = build(cylinder_dict(divisions=(30, 15)))

@@ -894,15 +894,15 @@ LOWER_BOUND_MAX_ELEMENTS = {2: 100_000, 3: 25_000}
 #: the same with Clarabel (the limit-load program, or ``solver="clarabel"``): 3D 8,000
 CLARABEL_MAX_ELEMENTS = {2: 100_000, 3: 8_000}
 #: peak resident memory of one lower-bound program per element (bytes), from the largest
-#: measured peaks less the process's ~0.1 GB base, with a margin for growth: Clarabel 2D
-#: 34 kB at 25,600 triangles (benchmarks/bounds/README.md), 3D 120 kB at 1,080 and 153 kB
-#: at 3,072 tetrahedra (its fill grows faster than N); SCS 3D 151 kB at 3,072, 179 kB at
-#: 12,288 and 202 kB at 24,576 tetrahedra (5.06 GB; benchmarks/bounds/solvers.md and the
-#: README). A U bracket runs two more programs one after another: its peak was 1.8x one
-#: program's (9.0 GB at 24,576 tetrahedra).
+#: measured peaks less the process's ~0.2 GB base, with a margin for growth: Clarabel 2D
+#: 33 kB at 25,600 triangles (benchmarks/bounds/memory.md), 3D 120 kB at 1,080 and 153 kB
+#: at 3,072 tetrahedra (benchmarks/bounds/lower.md, solvers.md: its fill grows faster than
+#: N); SCS 3D 151 kB at 3,072, 179 kB at 12,288 and 203 kB at 24,576 tetrahedra (5.18 GB,
+#: memory.md). Programs run one after another in one process peak higher: the U bracket's
+#: two more raised the peak 1.78x in 3D (9.23 GB) and 1.29x in 2D (memory.md).
 LOWER_BOUND_BYTES_PER_ELEMENT = {2: 45_000, 3: 250_000}
 #: the peak of several programs run one after another in one process (the U bracket,
-#: the adaptive loop) over one program's: measured 1.8 (above)
+#: the adaptive loop) over one program's: measured up to 1.78 (above)
 SEQUENCE_MEMORY_FACTOR = 2.0
 
 

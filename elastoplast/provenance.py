@@ -159,3 +159,42 @@ def rewrite_report(out_dir: str | Path, title: str, render: Callable[[dict[str, 
     results = json.loads(json_path.read_text())
     md_path.write_text(report_text(title, results, render(results)))
     return results
+
+
+def run_record(doc: str, quick: str, topic: str | Path, title: str, label: str,
+               run: Callable[[str, Path], dict[str, Any]], render: Callable[[dict[str, Any]], str],
+               plots: Callable[[dict[str, Any], Path], None] | None = None, argv=None) -> int:
+    """The ``main()`` of a benchmark folder's ``run.py``: parse ``--quick``/``--out``/
+    ``--report`` (:func:`record_parser`), run ``run(mode, out)`` (mode ``"quick"`` or
+    ``"full"``) timed into ``total_time_s``, stamp and write the record, then draw
+    ``plots(results, out)``; with ``--report`` only the report and the plots again."""
+    import time
+
+    args = record_parser(doc, quick).parse_args(argv)
+    out = record_dir(topic, args.quick, args.out)
+    if args.report:
+        res = rewrite_report(out, title, render)
+    else:
+        mode = "quick" if args.quick else "full"
+        t0 = time.perf_counter()
+        print(f"{label}, {mode} mode -> {out}", flush=True)
+        res = run(mode, out)
+        res["total_time_s"] = round(time.perf_counter() - t0, 1)
+        res = write_record(out, res, title, render)
+    if plots is not None:
+        plots(res, out)
+    if not args.report:
+        print(f"done in {res['total_time_s']} s", flush=True)
+    return 0
+
+
+def run_child(script: str | Path, spec: Any, flag: str = "--child", cwd: str | Path | None = None) -> dict[str, Any]:
+    """Run ``python script flag JSON(spec)`` in a fresh process (its own peak memory) and
+    return the JSON object on the last line of its output, or ``{"error": ...}`` with
+    the last line of its stderr when it failed."""
+    cmd = [sys.executable, str(script), flag, json.dumps(spec)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=cwd)
+    if proc.returncode != 0:
+        err = proc.stderr.strip()
+        return {"error": err.splitlines()[-1] if err else f"exit {proc.returncode}"}
+    return json.loads(proc.stdout.strip().splitlines()[-1])

@@ -45,7 +45,7 @@ import numpy as np
 import elastoplast as ep
 from elastoplast.adapt import AdaptOptions, Step, adapt, elements_at_gap, fitted_rate, plot_gap_curves, plot_indicator, uniform
 from elastoplast.problem import read_toml
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.provenance import run_record
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -302,20 +302,7 @@ def plots(res: dict, out: Path) -> None:
 
 
 def main(argv=None) -> int:
-    args = record_parser(__doc__, "coarse starts and loose targets (about a minute)").parse_args(argv)
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        plots(rewrite_report(out, TITLE, report), out)
-        return 0
-    mode = "quick" if args.quick else "full"
-    t0 = time.perf_counter()
-    print(f"adapt benchmark, {mode} mode -> {out}", flush=True)
-    res = run_all(mode, out)
-    res["total_time_s"] = round(time.perf_counter() - t0, 1)
-    res = write_record(out, res, TITLE, report)
-    plots(res, out)
-    print(f"done in {res['total_time_s']} s", flush=True)
-    return 0
+    return run_record(__doc__, "coarse starts and loose targets (about a minute)", HERE, TITLE, "adapt benchmark", run_all, report, plots, argv)
 
 
 if __name__ == "__main__":

@@ -15,10 +15,9 @@ its own process. Writes ``memory.json`` and ``memory.md``.
 
 from __future__ import annotations
 
+import argparse
 import json
 import resource
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -85,14 +84,13 @@ def render(res: dict) -> str:
 
 
 def main(argv=None) -> None:
-    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+    from elastoplast.provenance import record_dir, record_parser, rewrite_report, run_child, write_record
 
     ap = record_parser(__doc__, quick="the 3D quarter at 384 tetrahedra and the 2D cylinder at 400 triangles")
-    ap.add_argument("--case", help=argparse_suppress(), default=None)
+    ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    if args.case:
-        name, divs = args.case.split(":")
-        print(json.dumps(measure_case(name, [int(v) for v in divs.split(",")])))
+    if args.child:
+        print(json.dumps(measure_case(*json.loads(args.child))))
         return
     out = record_dir(HERE, args.quick, args.out)
     if args.report:
@@ -100,17 +98,11 @@ def main(argv=None) -> None:
         return
     cases = []
     for name, divs in CASES["quick" if args.quick else "full"]:
-        proc = subprocess.run([sys.executable, __file__, "--case", f"{name}:{','.join(map(str, divs))}"],
-                              capture_output=True, text=True, check=True)
-        cases.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+        cases.append(run_child(__file__, [name, divs]))
+        if "error" in cases[-1]:
+            raise SystemExit(f"{name} {divs}: {cases[-1]['error']}")
         print(cases[-1], flush=True)
     write_record(out, {"cases": cases}, TITLE, render, study=STUDY)
-
-
-def argparse_suppress():
-    import argparse
-
-    return argparse.SUPPRESS
 
 
 if __name__ == "__main__":

@@ -29,8 +29,6 @@ from __future__ import annotations
 import copy
 import json
 import resource
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -159,11 +157,9 @@ def run_one(problem: str, divisions, material: dict, method: str) -> dict:
 
 
 def child(problem: str, divisions, material: dict, method: str) -> dict:
-    cmd = [sys.executable, __file__, "--child", json.dumps([problem, list(divisions), material, method])]
-    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-    if res.returncode != 0:
-        return {"error": res.stderr.strip().splitlines()[-1] if res.stderr.strip() else f"exit {res.returncode}"}
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    from elastoplast.provenance import run_child
+
+    return run_child(__file__, [problem, list(divisions), material, method], cwd=ROOT)
 
 
 def _case_name(case: dict) -> str:

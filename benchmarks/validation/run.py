@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.provenance import run_record
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -359,20 +359,7 @@ def report(res: dict) -> str:
 
 
 def main(argv=None) -> int:
-    args = record_parser(__doc__, "small meshes (under a minute)").parse_args(argv)
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        plots(rewrite_report(out, TITLE, report), out)
-        return 0
-    mode = "quick" if args.quick else "full"
-    t0 = time.perf_counter()
-    print(f"validation study, {mode} mode -> {out}", flush=True)
-    res = run_all(mode)
-    res["total_time_s"] = round(time.perf_counter() - t0, 1)
-    res = write_record(out, res, TITLE, report)
-    plots(res, out)
-    print(f"done in {res['total_time_s']} s", flush=True)
-    return 0
+    return run_record(__doc__, "small meshes (under a minute)", HERE, TITLE, "validation study", lambda mode, out: run_all(mode), report, plots, argv)
 
 
 if __name__ == "__main__":

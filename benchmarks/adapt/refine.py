@@ -19,6 +19,7 @@ Usage::
 
     nice python benchmarks/adapt/refine.py            # writes refine.json, refine.md here
     nice python benchmarks/adapt/refine.py --quick    # small cases into benchmarks/adapt/quick/
+    python benchmarks/adapt/refine.py --report        # refine.md again from refine.json
 """
 
 from __future__ import annotations
@@ -26,8 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -54,6 +53,8 @@ QUICK_TIMING = [
 ]
 QUALITY = ["rectangle", "crossed", "punch_gmsh", "box", "quarter", "gmsh_box"]
 ROUNDS = 20
+STUDY = "refine"
+TITLE = "Conforming bisection refinement at a million elements (issue 11, part 1)"
 
 
 # ----------------------------------------------------------------------------
@@ -166,14 +167,13 @@ def child(spec: dict) -> dict:
 
 
 def run_timing(cases: list[dict], tmp: Path) -> list[dict]:
+    from elastoplast.provenance import run_child
+
     rows = []
     for spec in cases:
         spec = {**spec, "tmp": str(tmp)}
-        proc = subprocess.run([sys.executable, __file__, "--child", json.dumps(spec)], capture_output=True, text=True)
-        if proc.returncode != 0:
-            row = {**spec, "error": proc.stderr.strip().splitlines()[-1:]}
-        else:
-            row = {**spec, **json.loads(proc.stdout.strip().splitlines()[-1])}
+        row = {**spec, **run_child(__file__, spec)}
+        if "error" not in row:
             print(f"  {spec['name']}: {row['n_in']} -> {row['n_out']} elements, label {row['label_s']:.2f} s, "
                   f"refine {row['refine_s']:.2f} s, peak {row['peak_rss_mb']:.0f} MB", flush=True)
         row.pop("tmp")
@@ -252,11 +252,7 @@ def run_quality(kinds: list[str], rounds: int, tmp: Path, quick: bool) -> list[d
 
 
 def report(results: dict) -> str:
-    from elastoplast.provenance import stamp_line
-
-    lines = ["# Conforming bisection refinement at a million elements (issue 11, part 1)", "",
-             stamp_line(results["stamp"]), "",
-             "Each timing case runs in its own process (`peak` is its VmHWM: mesh generation, labelling and",
+    lines = ["Each timing case runs in its own process (`peak` is its VmHWM: mesh generation, labelling and",
              "refinement; `before` is the VmHWM after building the input mesh). `closure` counts the elements",
              "the closure added beyond the 2^d - 1 new ones per marked element. Timings move by up to 2x",
              "between runs on this shared machine.", "",
@@ -299,9 +295,9 @@ def report(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", type=Path, default=None)
+    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+
+    parser = record_parser(__doc__, quick="meshes of a few thousand elements, 6 rounds")
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child is not None:
@@ -309,19 +305,17 @@ def main(argv: list[str] | None = None) -> None:
         return
     import tempfile
 
-    from elastoplast.provenance import stamp
-
-    out = args.out or (HERE / "quick" if args.quick else HERE)
-    out.mkdir(parents=True, exist_ok=True)
+    out = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out, TITLE, report, study=STUDY)
+        return
     with tempfile.TemporaryDirectory() as tmp:
         print("timing:", flush=True)
         timing = run_timing(QUICK_TIMING if args.quick else TIMING, Path(tmp))
         print("quality:", flush=True)
         rounds = 6 if args.quick else ROUNDS
         quality = run_quality(QUALITY, rounds, Path(tmp), args.quick)
-    results = {"stamp": stamp(), "rounds": rounds, "timing": timing, "quality": quality}
-    (out / "refine.json").write_text(json.dumps(results, indent=1))
-    (out / "refine.md").write_text(report(results))
+    write_record(out, {"rounds": rounds, "timing": timing, "quality": quality}, TITLE, report, study=STUDY)
     print(f"wrote {out / 'refine.json'} and {out / 'refine.md'}")
 
 

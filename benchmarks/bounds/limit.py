@@ -1,6 +1,6 @@
 """Side study: the limit-load bracket F_lower <= F_c <= F_upper on Prandtl's punch (docs/bounds.md).
 
-    python benchmarks/bounds/limit.py [--quick] [--out DIR]
+    python benchmarks/bounds/limit.py [--quick] [--out DIR] [--report]
 
 A rigid flat frictionless punch of half-width b = 1 on a block, plane strain, H = 0,
 sigma_y = 1: Prandtl's limit load is (2 + pi) k b for the half model (k = sigma_y /
@@ -13,8 +13,9 @@ For each mesh: the static program of the equilibrium element (``static_limit_loa
 and the kinematic program with P1 and P2 velocities (``kinematic_limit_load``),
 each in its own process, time and peak memory; ratio = F_upper / F_lower. Also: the
 same meshes without grading, the P2 bound on the two-triangle (diagonal) pattern,
-where P1 locks, and a 3D quarter model of a flat circular punch. Writes ``limit.json`` and ``limit.md`` beside this file (or
-into ``--out``; ``--quick`` writes into ``benchmarks/bounds/quick/``).
+where P1 locks, and a 3D quarter model of a flat circular punch. Writes ``limit.json`` and
+``limit.md`` beside this file (or into ``--out``; ``--quick`` writes into
+``benchmarks/bounds/quick/``); ``--report`` renders ``limit.md`` again from ``limit.json``.
 """
 
 from __future__ import annotations
@@ -22,8 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -33,6 +32,8 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 PRANDTL = (2 + np.pi) / np.sqrt(3)  # (2 + pi) k b with sigma_y = b = 1
 GOAL = 1.02
+STUDY = "limit"
+TITLE = "Limit-load bracket on Prandtl's punch"
 
 #: (n squares per b, grading, pattern, what)
 FULL = ([(n, 2.0, "crossed", w) for n in (2, 4, 8, 16, 32) for w in ("lower", "upper-1", "upper-2")]
@@ -108,11 +109,9 @@ def run_one(n: int, grading: float, pattern: str, what: str) -> dict:
 
 
 def child(n: int, grading: float, pattern: str, what: str) -> dict:
-    cmd = [sys.executable, __file__, "--child", str(n), str(grading), pattern, what]
-    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-    if res.returncode != 0:
-        return {"error": res.stderr.strip().splitlines()[-1] if res.stderr else f"exit {res.returncode}"}
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    from elastoplast.provenance import run_child
+
+    return run_child(__file__, [n, grading, pattern, what], cwd=ROOT)
 
 
 def _rows(results: dict):
@@ -123,10 +122,7 @@ def _rows(results: dict):
 
 
 def report(results: dict) -> str:
-    from elastoplast.provenance import stamp_line
-
-    lines = ["# Limit-load bracket on Prandtl's punch", "", stamp_line(results["stamp"]), "",
-             "Half model 4b x 2b, punch half-width b = 1, sigma_y = 1, H = 0; Prandtl: F_c = (2 + pi) k b = "
+    lines = ["Half model 4b x 2b, punch half-width b = 1, sigma_y = 1, H = 0; Prandtl: F_c = (2 + pi) k b = "
              f"{PRANDTL:.6f}. Each program in its own process (time: the whole call; memory: peak RSS).",
              "`ratio` = F_upper / F_lower with the better (smaller) upper bound; goal <= 1.02 at the finest mesh.", "",
              "| pattern | grading | n per b | triangles | F_lower / Prandtl | F_upper P1 / Prandtl | F_upper P2 / Prandtl "
@@ -180,27 +176,26 @@ def report(results: dict) -> str:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true")
-    p.add_argument("--out", type=Path)
-    p.add_argument("--child", nargs=4)
-    args = p.parse_args(argv)
+    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+
+    ap = record_parser(__doc__, quick="crossed graded meshes n = 2, 4 and the 3D quarter at n = 2")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
     if args.child:
-        n, g, pat, what = args.child
+        n, g, pat, what = json.loads(args.child)
         print(json.dumps(run_one(int(n), float(g), pat, what)))
         return
-    from elastoplast.provenance import stamp
-
-    out = args.out or (HERE / "quick" if args.quick else HERE)
-    out.mkdir(parents=True, exist_ok=True)
-    results = {"stamp": stamp(), "prandtl": PRANDTL, "runs": []}
+    out = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out, TITLE, report, study=STUDY)
+        return
+    results = {"prandtl": PRANDTL, "runs": []}
     runs = (QUICK if args.quick else FULL) + [(n, 1.0, "3d", w) for n, w in (QUICK_3D if args.quick else FULL_3D)]
     for n, g, pat, what in runs:
         res = child(n, g, pat, what)
         results["runs"].append({"n": n, "grading": g, "pattern": pat, "what": what, "result": res})
         print(json.dumps(results["runs"][-1]), flush=True)
-    (out / "limit.json").write_text(json.dumps(results, indent=1))
-    (out / "limit.md").write_text(report(results))
+    write_record(out, results, TITLE, report, study=STUDY)
 
 
 if __name__ == "__main__":

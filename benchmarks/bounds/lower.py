@@ -1,6 +1,6 @@
 """Side study: cost of the certified lower bound (equilibrium element) against the (S) conic solve.
 
-    python benchmarks/bounds/lower.py [--quick] [--out DIR]
+    python benchmarks/bounds/lower.py [--quick] [--out DIR] [--report] [--skip-qdldl-from N]
 
 On the 2D cylinder (problems/cylinder_2d.toml, graded) and the 3D quarter sphere
 (problems/sphere_quarter_3d.toml, two symmetry planes) at a few sizes, each solve runs
@@ -8,7 +8,8 @@ in its own process so that its peak memory (ru_maxrss) is its own: ``ep.solve(di
 "conic")`` (value_D = Pi at the P1 solution) and ``solve_lower_bound`` (the bound
 -J <= Pi*, its certificate, the phases' timings). 3D cases also run the lower bound
 with Clarabel's faer factorisation. Writes ``lower.json`` and ``lower.md`` beside this
-file (or into ``--out``; ``--quick`` writes into ``benchmarks/bounds/quick/``).
+file (or into ``--out``; ``--quick`` writes into ``benchmarks/bounds/quick/``);
+``--report`` renders ``lower.md`` again from ``lower.json``.
 """
 
 from __future__ import annotations
@@ -17,14 +18,14 @@ import argparse
 import copy
 import json
 import resource
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 PROBLEMS = ROOT / "problems"
+STUDY = "lower"
+TITLE = "Lower bound (equilibrium element) against the (S) conic solve"
 
 CASES = {
     "cylinder_2d": [(24, 12), (40, 20), (80, 40), (120, 60)],
@@ -63,19 +64,13 @@ def run_one(problem: str, divisions, what: str) -> dict:
 
 
 def child(problem: str, divisions, what: str) -> dict:
-    cmd = [sys.executable, __file__, "--child", problem, ",".join(map(str, divisions)), what]
-    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-    if res.returncode != 0:
-        return {"error": res.stderr.strip().splitlines()[-1] if res.stderr else f"exit {res.returncode}"}
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    from elastoplast.provenance import run_child
+
+    return run_child(__file__, [problem, list(divisions), what], cwd=ROOT)
 
 
-def report(results: dict, stamp: dict) -> str:
-    from elastoplast.provenance import stamp_line
-
+def report(results: dict) -> str:
     lines = [
-        "# Lower bound (equilibrium element) against the (S) conic solve", "",
-        stamp_line(stamp), "",
         "Each solve in its own process; times in seconds (wall clock, whole call), peak RSS of that process.",
         "`gap` = (value_D - lower) / |value_D|: value_D = Pi(u_h, U_h) >= -J (weak duality with the P1",
         "interpolant of psi, see tests/test_equilibrium.py), so it is >= 0; it is the bracket on Pi* only",
@@ -113,22 +108,22 @@ def report(results: dict, stamp: dict) -> str:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true")
-    p.add_argument("--out", type=Path)
-    p.add_argument("--child", nargs=3)
-    p.add_argument("--skip-qdldl-from", type=int, default=1000,
-                   help="3D: run the lower bound with qdldl only below this many elements (it is 2-3x slower than faer)")
-    args = p.parse_args(argv)
-    if args.child:
-        problem, div, what = args.child
-        print(json.dumps(run_one(problem, tuple(int(v) for v in div.split(",")), what)))
-        return
-    from elastoplast.provenance import stamp
+    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
 
-    out = args.out or (HERE / "quick" if args.quick else HERE)
-    out.mkdir(parents=True, exist_ok=True)
-    results = {"stamp": stamp(), "cases": []}
+    ap = record_parser(__doc__, quick="the cylinder at 576 and 1,600 triangles, the 3D quarter at 3 x 3 x 3")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--skip-qdldl-from", type=int, default=1000,
+                    help="3D: run the lower bound with qdldl only below this many elements (it is 2-3x slower than faer)")
+    args = ap.parse_args(argv)
+    if args.child:
+        problem, div, what = json.loads(args.child)
+        print(json.dumps(run_one(problem, tuple(div), what)))
+        return
+    out = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out, TITLE, report, study=STUDY)
+        return
+    results = {"cases": []}
     for problem, sizes in (QUICK if args.quick else CASES).items():
         for div in sizes:
             case = {"problem": problem, "divisions": list(div), "conic": child(problem, div, "conic")}
@@ -139,8 +134,7 @@ def main(argv=None) -> None:
                 case["lower-faer"] = child(problem, div, "lower-faer")
             results["cases"].append(case)
             print(json.dumps(case), flush=True)
-    (out / "lower.json").write_text(json.dumps(results, indent=1))
-    (out / "lower.md").write_text(report(results, results["stamp"]))
+    write_record(out, results, TITLE, report, study=STUDY)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Side study: the certified energy bracket -J <= Pi* <= Pi and the U bracket (docs/bounds.md).
 
-    python benchmarks/bounds/upper.py [--quick] [--out DIR]
+    python benchmarks/bounds/upper.py [--quick] [--out DIR] [--report]
 
 1. Energy bracket on the 2D cylinder (problems/cylinder_2d.toml, graded, divisions
    2n x n) and the 3D quarter sphere (problems/sphere_quarter_3d.toml) at a few
@@ -16,12 +16,12 @@
    every mesh of the sequence (all should lie inside every bracket).
 
 Writes ``upper.json`` and ``upper.md`` beside this file (or into ``--out``;
-``--quick`` writes into ``benchmarks/bounds/quick/``).
+``--quick`` writes into ``benchmarks/bounds/quick/``); ``--report`` renders
+``upper.md`` again from ``upper.json``.
 """
 
 from __future__ import annotations
 
-import argparse
 import copy
 import json
 import time
@@ -32,6 +32,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 PROBLEMS = ROOT / "problems"
+STUDY = "upper"
+TITLE = "Energy and U brackets from the certified upper and lower bounds"
 
 ENERGY = {"cylinder_2d": [(20, 10), (40, 20), (80, 40), (160, 80)], "sphere_quarter_3d": [(3, 3, 3), (4, 4, 3), (5, 5, 4)]}
 U_MESHES = [(20, 10), (40, 20), (80, 40)]
@@ -107,10 +109,7 @@ def u_case(divisions, U_ref: dict) -> dict:
 
 
 def report(results: dict) -> str:
-    from elastoplast.provenance import stamp_line
-
-    lines = ["# Energy and U brackets from the certified upper and lower bounds", "", stamp_line(results["stamp"]), "",
-             "Energies in N mm (2D: per mm). `value_D` is the discrete P1 value (below Pi* is possible: u_h penetrates ",
+    lines = ["Energies in N mm (2D: per mm). `value_D` is the discrete P1 value (below Pi* is possible: u_h penetrates ",
              "between the nodes); `shift` / `lift` / `best` are upper bounds of u_h with the three corrections, "
              "`conservative` the upper bound of the solution with psi lowered by the facet allowance; `gap` uses the "
              "smaller of best and conservative; `corr share` = (upper - value_D) / gap, the part of the gap the "
@@ -159,15 +158,14 @@ def report(results: dict) -> str:
 
 def main(argv=None) -> None:
     import elastoplast as ep
-    from elastoplast.provenance import stamp
+    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
 
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true")
-    p.add_argument("--out", type=Path)
-    args = p.parse_args(argv)
-    out = args.out or (HERE / "quick" if args.quick else HERE)
-    out.mkdir(parents=True, exist_ok=True)
-    results = {"stamp": stamp(), "energy": [], "u": []}
+    args = record_parser(__doc__, quick="the cylinder at 400 and 1,600 triangles, the 3D quarter at 3 x 3 x 3").parse_args(argv)
+    out = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out, TITLE, report, study=STUDY)
+        return
+    results = {"energy": [], "u": []}
     for problem, sizes in (QUICK_ENERGY if args.quick else ENERGY).items():
         for div in sizes:
             results["energy"].append(energy_case(problem, div))
@@ -178,8 +176,7 @@ def main(argv=None) -> None:
     for div in meshes:
         results["u"].append(u_case(div, results["U_ref"]))
         print(json.dumps(results["u"][-1]), flush=True)
-    (out / "upper.json").write_text(json.dumps(results, indent=1))
-    (out / "upper.md").write_text(report(results))
+    write_record(out, results, TITLE, report, study=STUDY)
 
 
 if __name__ == "__main__":

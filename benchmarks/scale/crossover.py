@@ -2,17 +2,17 @@
 
     python benchmarks/scale/crossover.py            # m = 80, 160, 320, 640 (25k .. 410k triangles)
     python benchmarks/scale/crossover.py --quick    # m = 40, 80, into quick/
+    python benchmarks/scale/crossover.py --report   # crossover.md again from crossover.json
 
 The 3D crossover is read off the main run (run.py); this measures the same
 cases on the 2D plane-strain problem, where direct factorisations fill in far
 less. Each case runs in its own process (run.py's ``--case``); answers are
-compared with the direct Newton answer. Writes ``crossover.json`` and ``crossover.md``.
+compared with the direct Newton answer. Writes ``crossover.json`` and ``crossover.md``
+beside this file (``--out`` to change).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path
@@ -20,20 +20,36 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from run import spawn  # noqa: E402
+from run import TOL, spawn  # noqa: E402
 
+STUDY = "crossover"
+TITLE = f"2D crossover: direct against AMG (cylinder_2d, KKT <= {TOL:g})"
 KINDS = ["newton[pardiso]", "newton[amg]", "uzawa[direct]", "uzawa[amg]"]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true")
-    args = ap.parse_args()
-    from elastoplast.provenance import stamp, stamp_line
+def render(res: dict) -> str:
+    lines = ["| triangles | case | wall s | CPU s | peak GB | iterations | status | dU vs ref | stress err vs ref |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in res["records"]:
+        if "error" in r:
+            lines.append(f"| | {r['kind']} | error: {r['error']} | | | | | | |")
+            continue
+        du = f"{r['dU_rel']:.1e}" if "dU_rel" in r else ""
+        se = f"{r['stress_error_energy']:.1e}" if "stress_error_energy" in r else ""
+        lines.append(f"| {r['n_elements']:,} | {r['kind']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {r['peak_gb']:.2f} "
+                     f"| {r['iterations']} | {r['status']} | {du} | {se} |")
+    return "\n".join(lines) + "\n"
 
+
+def main(argv=None) -> None:
+    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+
+    args = record_parser(__doc__, quick="m = 40, 80").parse_args(argv)
+    out = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out, TITLE, render, study=STUDY)
+        return
     sizes = [40, 80] if args.quick else [80, 160, 320, 640]
-    out = HERE / "quick" if args.quick else HERE
-    out.mkdir(exist_ok=True)
     records = []
     with tempfile.TemporaryDirectory() as store:
         for m in sizes:
@@ -43,20 +59,7 @@ def main() -> None:
                 print(f"2D m={m} {kind}: {rec.get('n_elements')} el, {rec.get('wall_s', float('nan')):.1f} s wall, "
                       f"{rec.get('cpu_s', float('nan')):.1f} s CPU, {rec.get('status')} {rec.get('error', '')}",
                       flush=True)
-    res = {"stamp": stamp(), "records": records}
-    (out / "crossover.json").write_text(json.dumps(res, indent=1))
-    lines = [stamp_line(res["stamp"]), "", "# 2D crossover: direct against AMG (cylinder_2d, KKT <= 1e-8)", "",
-             "| triangles | case | wall s | CPU s | peak GB | iterations | status | dU vs ref | stress err vs ref |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for r in records:
-        if "error" in r:
-            lines.append(f"| | {r['kind']} | error: {r['error']} | | | | | | |")
-            continue
-        du = f"{r['dU_rel']:.1e}" if "dU_rel" in r else ""
-        se = f"{r['stress_error_energy']:.1e}" if "stress_error_energy" in r else ""
-        lines.append(f"| {r['n_elements']:,} | {r['kind']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {r['peak_gb']:.2f} "
-                     f"| {r['iterations']} | {r['status']} | {du} | {se} |")
-    (out / "crossover.md").write_text("\n".join(lines) + "\n")
+    write_record(out, {"records": records}, TITLE, render, study=STUDY)
 
 
 if __name__ == "__main__":

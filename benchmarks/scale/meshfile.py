@@ -2,13 +2,14 @@
 
     python benchmarks/scale/meshfile.py            # 1.03M tetrahedra (n = 35)
     python benchmarks/scale/meshfile.py --quick    # 12k tetrahedra (n = 8), into quick/
+    python benchmarks/scale/meshfile.py --report   # meshfile.md again from meshfile.json
 
 Writes the default problem's box mesh (divisions [2n, 2n, n]) as a gmsh 2.2 file
 with its facet groups as physical groups, then times, each in its own process,
 (a) the box generator + discretisation and (b) reading the file + the same
 discretisation, with each process's peak memory, and checks that both give the
 same operators (element volumes, free dofs, contact nodes, obstacle gaps).
-Writes ``meshfile.json`` and ``meshfile.md`` beside this file.
+Writes ``meshfile.json`` and ``meshfile.md`` beside this file (``--out`` to change).
 """
 
 from __future__ import annotations
@@ -16,8 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -26,6 +25,8 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
+STUDY = "meshfile"
+TITLE = "A mesh file through the generator's path"
 
 
 def problem_dict(n: int, mesh_file: Path | None) -> dict:
@@ -71,19 +72,32 @@ def measure(n: int, mesh_file: str) -> dict:
             "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, "signature": sig}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--measure", nargs=2)
-    args = ap.parse_args()
-    if args.measure:
-        print(json.dumps(measure(int(args.measure[0]), args.measure[1])))
-        return
-    from elastoplast.provenance import stamp, stamp_line
+def render(res: dict) -> str:
+    runs = res["runs"]
+    lines = [f"{runs['file']['n_elements']:,} tetrahedra (the default box, divisions [2n, 2n, n], n = {res['n']}) as a "
+             f"gmsh 2.2 binary file, {res['file_mb']:.0f} MB, written in {res['write_s']:.1f} s. Same operators from "
+             f"the file as from the generator: **{res['same_operators']}**.", "",
+             "| source | mesh s | discretise s | peak GB |", "|---|---|---|---|"]
+    for label, r in runs.items():
+        lines.append(f"| {label} | {r['mesh_s']:.1f} | {r['discretize_s']:.1f} | {r['peak_gb']:.2f} |")
+    return "\n".join(lines) + "\n"
 
+
+def main(argv=None) -> None:
+    from elastoplast.provenance import record_dir, record_parser, rewrite_report, run_child, write_record
+
+    ap = record_parser(__doc__, quick="12k tetrahedra (n = 8)")
+    ap.add_argument("--measure", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.measure:
+        n, mesh_file = json.loads(args.measure)
+        print(json.dumps(measure(int(n), mesh_file)))
+        return
+    out = record_dir(HERE, args.quick, args.out)
+    if args.report:
+        rewrite_report(out, TITLE, render, study=STUDY)
+        return
     n = 8 if args.quick else 35
-    out = HERE / "quick" if args.quick else HERE
-    out.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "box.msh"
         t0 = time.perf_counter()
@@ -91,21 +105,14 @@ def main() -> None:
         t_write = time.perf_counter() - t0
         runs = {}
         for label, arg in (("generator", "-"), ("file", str(path))):
-            p = subprocess.run([sys.executable, __file__, "--measure", str(n), arg], capture_output=True, text=True,
-                               check=True)
-            runs[label] = json.loads(p.stdout.strip().splitlines()[-1])
+            runs[label] = run_child(__file__, [n, arg], flag="--measure")
+            if "error" in runs[label]:
+                raise SystemExit(f"{label}: {runs[label]['error']}")
         size_mb = path.stat().st_size / 1e6
     same = runs["generator"]["signature"] == runs["file"]["signature"]
-    res = {"stamp": stamp(), "n": n, "write_s": t_write, "file_mb": size_mb, "runs": runs, "same_operators": same}
-    (out / "meshfile.json").write_text(json.dumps(res, indent=1))
-    lines = [stamp_line(res["stamp"]), "", f"# A mesh file of {runs['file']['n_elements']:,} tetrahedra", "",
-             f"gmsh 2.2 binary file, {size_mb:.0f} MB, written in {t_write:.1f} s. Same operators from the file as "
-             f"from the generator: **{same}**.", "",
-             "| source | mesh s | discretise s | peak GB |", "|---|---|---|---|"]
-    for label, r in runs.items():
-        lines.append(f"| {label} | {r['mesh_s']:.1f} | {r['discretize_s']:.1f} | {r['peak_gb']:.2f} |")
-    (out / "meshfile.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    res = write_record(out, {"n": n, "write_s": t_write, "file_mb": size_mb, "runs": runs, "same_operators": same},
+                       TITLE, render, study=STUDY)
+    print(render(res))
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
     python benchmarks/scale/run.py            # full run: 12k .. 1.03M tetrahedra (about an hour here)
     python benchmarks/scale/run.py --quick    # 5k and 12k tetrahedra (about a minute), into quick/
+    python benchmarks/scale/run.py --report   # REPORT.md and the plot again from results.json
 
 The problem is the built-in default (a sphere pressed into a clamped block) with
 ``[mesh] divisions = [2n, 2n, n]`` (24 n^3 tetrahedra). Each case runs in its
@@ -16,7 +17,8 @@ AMG Newton answer. Times are wall and CPU seconds of the solve (after the
 discretisation, which is timed apart); the machine is shared, so the ratios
 inside this run, and the CPU times, are the figures to read.
 
-Writes ``results.json``, ``REPORT.md`` and plots beside this file (``--out`` to change).
+Writes ``results.json``, ``REPORT.md`` and plots beside this file (``--out`` to change),
+after every case (an interrupted run keeps what it measured).
 """
 
 from __future__ import annotations
@@ -25,8 +27,6 @@ import argparse
 import json
 import os
 import resource
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -36,6 +36,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 TOL = 1e-8
+TITLE = "A million tetrahedra (issue 12)"
 #: full run: n of divisions [2n, 2n, n] -> 24 n^3 tetrahedra (12k, 24k, 53k, 118k, 375k, 1.03M)
 SIZES = [8, 10, 13, 17, 25, 35]
 QUICK_SIZES = [6, 8]
@@ -162,13 +163,13 @@ def run_case(n: int, kind: str, dim: int, store: Path) -> dict:
 
 
 def spawn(n: int, kind: str, dim: int, store: Path) -> dict:
-    cmd = [sys.executable, __file__, "--case", str(n), kind, str(dim), str(store)]
+    """One case in its own process (``--case``): its record, or the case and the error."""
+    from elastoplast.provenance import run_child
+
     t0 = time.perf_counter()
-    out = subprocess.run(cmd, capture_output=True, text=True)
-    if out.returncode != 0:
-        return {"n": n, "dim": dim, "kind": kind, "error": out.stderr.strip().splitlines()[-1:],
-                "process_s": time.perf_counter() - t0}
-    rec = json.loads(out.stdout.strip().splitlines()[-1])
+    rec = run_child(__file__, [n, kind, dim, str(store)], flag="--case")
+    if "error" in rec:
+        rec = {"n": n, "dim": dim, "kind": kind, **rec}
     rec["process_s"] = time.perf_counter() - t0
     return rec
 
@@ -238,11 +239,8 @@ def summarise(records: list[dict]) -> dict:
 
 
 def report(results: dict) -> str:
-    from elastoplast.provenance import stamp_line
-
     recs = results["records"]
-    lines = [stamp_line(results["stamp"]), "", "# A million tetrahedra (issue 12)", "",
-             f"Default 3D problem, divisions [2n, 2n, n]; every method to KKT <= {TOL:g}; wall and CPU seconds of "
+    lines = [f"Default 3D problem, divisions [2n, 2n, n]; every method to KKT <= {TOL:g}; wall and CPU seconds of "
              "the solve after the discretisation; peak memory of the case's own process (mesh included).", "",
              "| tetrahedra | free dofs | case | wall s | CPU s | peak GB | iterations | status / residual | "
              "dU vs ref | stress err vs ref | discretise s |",
@@ -329,23 +327,14 @@ def plot(results: dict, out: Path) -> None:
     plt.close(fig)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path)
-    ap.add_argument("--case", nargs=4, metavar=("N", "KIND", "DIM", "STORE"))
-    args = ap.parse_args()
-    if args.case:
-        n, kind, dim, store = args.case
-        print(json.dumps(run_case(int(n), kind, int(dim), Path(store))))
-        return
-    from elastoplast.provenance import stamp
+def measure(mode: str, out: Path) -> dict:
+    """Every case of the plan, each in its own process; the record (stamped, with its
+    report) is written after every case."""
+    from elastoplast.provenance import write_record
 
-    out = args.out or (HERE / "quick" if args.quick else HERE)
-    out.mkdir(parents=True, exist_ok=True)
-    sizes = QUICK_SIZES if args.quick else SIZES
-    cases = plan(sizes, QUICK_CONIC_2D if args.quick else CONIC_2D)
-    results = {"stamp": stamp(), "tol": TOL, "records": []}
+    sizes = QUICK_SIZES if mode == "quick" else SIZES
+    cases = plan(sizes, QUICK_CONIC_2D if mode == "quick" else CONIC_2D)
+    results = {"tol": TOL, "records": []}
     with tempfile.TemporaryDirectory() as store:
         for n, kind, dim in cases:
             rec = spawn(n, kind, dim, Path(store))
@@ -354,11 +343,23 @@ def main() -> None:
                   f"{rec['n_elements']:,} el, {rec['wall_s']:.1f} s wall, {rec['cpu_s']:.1f} s CPU, "
                   f"{rec['peak_gb']:.2f} GB, {rec.get('status', '')} {rec.get('iterations', '')}"), flush=True)
             results["summary"] = summarise(results["records"])
-            (out / "results.json").write_text(json.dumps(results, indent=1))
-            (out / "REPORT.md").write_text(report(results))
-    plot(results, out)
+            write_record(out, results, TITLE, report)
+    return results
+
+
+def main(argv=None) -> int:
+    from elastoplast.provenance import run_record
+
+    ap = argparse.ArgumentParser(add_help=False)
+    ap.add_argument("--case", help=argparse.SUPPRESS)
+    args, rest = ap.parse_known_args(argv)
+    if args.case:
+        n, kind, dim, store = json.loads(args.case)
+        print(json.dumps(run_case(int(n), kind, int(dim), Path(store))))
+        return 0
+    return run_record(__doc__, "5k and 12k tetrahedra", HERE, TITLE, "scale", measure, report, plot, argv=rest)
 
 
 if __name__ == "__main__":
     os.environ.setdefault("PYTHONHASHSEED", "0")
-    main()
+    raise SystemExit(main())

@@ -163,24 +163,27 @@ def rewrite_report(out_dir: str | Path, title: str, render: Callable[[dict[str, 
 
 def run_record(doc: str, quick: str, topic: str | Path, title: str, label: str,
                run: Callable[[str, Path], dict[str, Any]], render: Callable[[dict[str, Any]], str],
-               plots: Callable[[dict[str, Any], Path], None] | None = None, argv=None) -> int:
-    """The ``main()`` of a benchmark folder's ``run.py``: parse ``--quick``/``--out``/
-    ``--report`` (:func:`record_parser`), run ``run(mode, out)`` (mode ``"quick"`` or
-    ``"full"``) timed into ``total_time_s``, stamp and write the record, then draw
-    ``plots(results, out)``; with ``--report`` only the report and the plots again."""
+               plots: Callable[[dict[str, Any], Path], None] | None = None, argv=None,
+               study: str | None = None) -> int:
+    """The ``main()`` of a benchmark script: parse ``--quick``/``--out``/``--report``
+    (:func:`record_parser`), run ``run(mode, out)`` (mode ``"quick"`` or ``"full"``)
+    timed into ``total_time_s``, stamp and write the record (a folder's
+    ``results.json``/``REPORT.md``, or ``<study>.json``/``<study>.md`` for a side
+    study), then draw ``plots(results, out)``; with ``--report`` only the report and
+    the plots again."""
     import time
 
     args = record_parser(doc, quick).parse_args(argv)
     out = record_dir(topic, args.quick, args.out)
     if args.report:
-        res = rewrite_report(out, title, render)
+        res = rewrite_report(out, title, render, study=study)
     else:
         mode = "quick" if args.quick else "full"
         t0 = time.perf_counter()
         print(f"{label}, {mode} mode -> {out}", flush=True)
         res = run(mode, out)
         res["total_time_s"] = round(time.perf_counter() - t0, 1)
-        res = write_record(out, res, title, render)
+        res = write_record(out, res, title, render, study=study)
     if plots is not None:
         plots(res, out)
     if not args.report:

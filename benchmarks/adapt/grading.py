@@ -24,7 +24,7 @@ from pathlib import Path
 import elastoplast as ep
 from elastoplast.adapt import AdaptOptions, Step, elements_at_gap, fitted_rate, uniform
 from elastoplast.problem import read_toml
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.provenance import run_record
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -71,14 +71,10 @@ def report(res: dict) -> str:
 
 
 def main(argv=None) -> int:
-    args = record_parser(__doc__, "coarse meshes").parse_args(argv)
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, report, study="grading")
-        return 0
-    record = json.loads((out / "results.json").read_text())
-    write_record(out, measure("quick" if args.quick else "full", record), TITLE, report, study="grading")
-    return 0
+    # the adaptive sequences to compare with are those recorded by run.py in the same folder
+    return run_record(__doc__, "coarse meshes", HERE, TITLE, "grading study",
+                      lambda mode, out: measure(mode, json.loads((out / "results.json").read_text())), report,
+                      argv=argv, study="grading")
 
 
 if __name__ == "__main__":

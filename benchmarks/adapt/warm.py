@@ -27,7 +27,7 @@ from elastoplast.bounds import conservative_discretization
 from elastoplast.equilibrium import solve_lower_bound
 from elastoplast.newton import NewtonOptions, solve_newton
 from elastoplast.problem import read_toml
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.provenance import run_record
 from elastoplast.refinement import prolong_p1
 
 HERE = Path(__file__).resolve().parent
@@ -115,13 +115,8 @@ def report(res: dict) -> str:
 
 
 def main(argv=None) -> int:
-    args = record_parser(__doc__, "a coarse start up to 800 triangles").parse_args(argv)
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, report, study="warm")
-        return 0
-    write_record(out, measure("quick" if args.quick else "full"), TITLE, report, study="warm")
-    return 0
+    return run_record(__doc__, "a coarse start up to 800 triangles", HERE, TITLE, "warm-start study",
+                      lambda mode, out: measure(mode), report, argv=argv, study="warm")
 
 
 if __name__ == "__main__":

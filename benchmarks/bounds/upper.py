@@ -156,27 +156,29 @@ def report(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> None:
+def measure(mode: str, out: Path) -> dict:
     import elastoplast as ep
-    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
 
-    args = record_parser(__doc__, quick="the cylinder at 400 and 1,600 triangles, the 3D quarter at 3 x 3 x 3").parse_args(argv)
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, report, study=STUDY)
-        return
+    quick = mode == "quick"
     results = {"energy": [], "u": []}
-    for problem, sizes in (QUICK_ENERGY if args.quick else ENERGY).items():
+    for problem, sizes in (QUICK_ENERGY if quick else ENERGY).items():
         for div in sizes:
             results["energy"].append(energy_case(problem, div))
             print(json.dumps(results["energy"][-1]), flush=True)
-    meshes = QUICK_U if args.quick else U_MESHES
-    ref_meshes = meshes + ([(160, 80)] if not args.quick else [(40, 20)])
+    meshes = QUICK_U if quick else U_MESHES
+    ref_meshes = meshes + ([(160, 80)] if not quick else [(40, 20)])
     results["U_ref"] = {"x".join(map(str, d)): ep.solve(disc_of("cylinder_2d", d), "conic").U for d in ref_meshes}
     for div in meshes:
         results["u"].append(u_case(div, results["U_ref"]))
         print(json.dumps(results["u"][-1]), flush=True)
-    write_record(out, results, TITLE, report, study=STUDY)
+    return results
+
+
+def main(argv=None) -> int:
+    from elastoplast.provenance import run_record
+
+    return run_record(__doc__, "the cylinder at 400 and 1,600 triangles, the 3D quarter at 3 x 3 x 3", HERE, TITLE,
+                      "upper-bound study", measure, report, argv=argv, study=STUDY)
 
 
 if __name__ == "__main__":

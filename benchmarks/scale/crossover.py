@@ -41,15 +41,8 @@ def render(res: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> None:
-    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
-
-    args = record_parser(__doc__, quick="m = 40, 80").parse_args(argv)
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, render, study=STUDY)
-        return
-    sizes = [40, 80] if args.quick else [80, 160, 320, 640]
+def measure(mode: str, out: Path) -> dict:
+    sizes = [40, 80] if mode == "quick" else [80, 160, 320, 640]
     records = []
     with tempfile.TemporaryDirectory() as store:
         for m in sizes:
@@ -59,7 +52,14 @@ def main(argv=None) -> None:
                 print(f"2D m={m} {kind}: {rec.get('n_elements')} el, {rec.get('wall_s', float('nan')):.1f} s wall, "
                       f"{rec.get('cpu_s', float('nan')):.1f} s CPU, {rec.get('status')} {rec.get('error', '')}",
                       flush=True)
-    write_record(out, {"records": records}, TITLE, render, study=STUDY)
+    return {"records": records}
+
+
+def main(argv=None) -> int:
+    from elastoplast.provenance import run_record
+
+    return run_record(__doc__, "m = 40, 80", HERE, TITLE, "2D crossover study", measure, render, argv=argv,
+                      study=STUDY)
 
 
 if __name__ == "__main__":

@@ -9,25 +9,26 @@ The data flows mesh -> discretisation -> solver -> certificate -> output::
     print(sol.U, sol.kkt.worst)
 """
 
-from .bounds import (Bounds, UpperBound, choose_delta, combine, energy_bounds, hencky_energy_density, penetration_bound,
+from elastoplast.bounds.upper import (Bounds, UpperBound, choose_delta, combine, energy_bounds, hencky_energy_density, penetration_bound,
                      u_bracket, upper_bound)
-from .certificate import KKTResiduals, certify
-from .conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
-from .discretize import Discretization, discretize
-from .equilibrium import (LowerBound, LowerBoundOptions, StaticCertificate, StaticField, certify_static, dual_energy,
+from elastoplast.certificate.kkt import KKTResiduals, certify
+from elastoplast.solvers.conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
+from elastoplast.fem.discretize import Discretization, discretize
+from elastoplast.bounds.lower import (LowerBound, LowerBoundOptions, StaticCertificate, StaticField, certify_static, dual_energy,
                           solve_lower_bound, static_limit_load)
-from .errors import InputError
-from .limit import KinematicBound, LimitBracket, LimitOptions, kinematic_limit_load, limit_load
-from .material import Material, return_mapping, von_mises
-from .mesh import Mesh, read_mesh, structured_mesh
-from .problem import Boundary, Obstacle, Problem, load_problem, make_material, problem_from_dict
-from .refinement import BisectionState, dorfler_mark, prolong_p1, refine, shape_quality
-from .solution import Solution, Status, make_solution, summary
-from .newton import NewtonOptions, solve_newton
-from .accelerated import FastOptions
-from .options import SolverOptions
-from .solvers import METHODS, method_options, solve
-from .uzawa import UzawaOptions, load_sweep, solve_uzawa
+from elastoplast.errors import InputError
+from elastoplast.bounds.limit import KinematicBound, LimitBracket, LimitOptions, kinematic_limit_load, limit_load
+from elastoplast.fem.material import Material, return_mapping, von_mises
+from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
+from elastoplast.problem.definition import (Boundary, Obstacle, Problem, load_problem, make_material, problem_from_dict,
+                                           read_toml)
+from elastoplast.mesh.refinement import BisectionState, dorfler_mark, prolong_p1, refine, shape_quality
+from elastoplast.certificate.solution import Solution, Status, make_solution, summary
+from elastoplast.solvers.newton import NewtonOptions, solve_newton
+from elastoplast.solvers.accelerated import FastOptions
+from elastoplast.problem.options import SolverOptions
+from elastoplast.solvers.registry import METHODS, method_options, solve
+from elastoplast.solvers.uzawa import UzawaOptions, load_sweep, solve_uzawa
 
 __version__ = "0.2.0"
 

@@ -28,9 +28,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import elastoplast as ep
-from elastoplast.material import von_mises
-from elastoplast.problem import read_toml
-from elastoplast.solution import summary
+from elastoplast.fem.material import von_mises
+from elastoplast.problem.definition import read_toml
+from elastoplast.certificate.solution import summary
 
 SMALL = os.environ.get("ELASTOPLAST_NOTEBOOK_SMALL") == "1"
 PROBLEMS = Path(ep.__file__).resolve().parents[1] / "problems"
@@ -66,7 +66,7 @@ for name, sol in sols.items():
           f"{sol.iterations} iterations, {sol.time_s:.1f} s, plastic volume share {s['plastic_volume_fraction']:.4f}")
 if len(sols) == 2:
     a, b = sols["conic"], sols["uzawa"]
-    from elastoplast.certificate import energy_norm_sq
+    from elastoplast.certificate.kkt import energy_norm_sq
     d = energy_norm_sq(disc, a.sigma - b.sigma, a.xi - b.xi) / energy_norm_sq(disc, a.sigma, a.xi)
     print(f"conic vs Uzawa: stresses differ by {np.sqrt(d):.1e} in the energy norm, U by {abs(a.U - b.U) / a.U:.1e}")
 sol = sols["conic"]

@@ -25,8 +25,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import elastoplast as ep
-from elastoplast.material import von_mises
-from elastoplast.solution import summary
+from elastoplast.fem.material import von_mises
+from elastoplast.certificate.solution import summary
 
 SMALL = os.environ.get("ELASTOPLAST_NOTEBOOK_SMALL") == "1"
 NH = 10 if SMALL else 40

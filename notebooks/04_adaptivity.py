@@ -33,10 +33,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 
 import elastoplast as ep
-from elastoplast.adapt import (AdaptOptions, adapt, draw_indicator, elements_at_gap, fitted_rate, plot_gap_curves,
+from elastoplast.adapt.loop import (AdaptOptions, adapt, draw_indicator, elements_at_gap, fitted_rate, plot_gap_curves,
                                uniform, zoom_window)
-from elastoplast.bounds import element_indicators
-from elastoplast.problem import read_toml
+from elastoplast.bounds.upper import element_indicators
+from elastoplast.problem.definition import read_toml
 
 SMALL = os.environ.get("ELASTOPLAST_NOTEBOOK_SMALL") == "1"
 PROBLEMS = Path(ep.__file__).resolve().parents[1] / "problems"

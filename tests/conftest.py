@@ -30,14 +30,14 @@ def in_a_temporary_directory(tmp_path, monkeypatch):
 
 def cylinder_dict(divisions=(40, 20), **material) -> dict:
     """2D plane-strain cylinder on a clamped block (problems/cylinder_2d.toml, coarser)."""
-    data = ep.problem.read_toml(PROBLEMS / "cylinder_2d.toml")
+    data = ep.read_toml(PROBLEMS / "cylinder_2d.toml")
     data["mesh"]["divisions"] = list(divisions)
     data["material"].update(material)
     return data
 
 
 def sphere_quarter_dict(divisions=(6, 6, 5), **material) -> dict:
-    data = ep.problem.read_toml(PROBLEMS / "sphere_quarter_3d.toml")
+    data = ep.read_toml(PROBLEMS / "sphere_quarter_3d.toml")
     data["mesh"]["divisions"] = list(divisions)
     data["material"].update(material)
     return data
@@ -45,7 +45,7 @@ def sphere_quarter_dict(divisions=(6, 6, 5), **material) -> dict:
 
 def energy_error(disc: ep.Discretization, a: ep.Solution, b: ep.Solution) -> float:
     """Relative distance of ``a``'s stresses from ``b``'s in the energy norm [.,.]."""
-    from elastoplast.certificate import energy_norm_sq
+    from elastoplast.certificate.kkt import energy_norm_sq
 
     return float(np.sqrt(energy_norm_sq(disc, a.sigma - b.sigma, a.xi - b.xi) / energy_norm_sq(disc, b.sigma, b.xi)))
 

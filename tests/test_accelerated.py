@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast.accelerated import (
+from elastoplast.solvers.accelerated import (
     FastOptions,
     alg2_displacements,
     alg2_setup,
@@ -20,9 +20,9 @@ from elastoplast.accelerated import (
     solve_alg2,
     splitting_metric,
 )
-from elastoplast.certificate import gaps
-from elastoplast.discretize import nondimensionalize
-from elastoplast.material import Material, identity_vector, n_components, return_mapping, von_mises
+from elastoplast.certificate.kkt import gaps
+from elastoplast.fem.discretize import nondimensionalize
+from elastoplast.fem.material import Material, identity_vector, n_components, return_mapping, von_mises
 
 from conftest import assert_matches_reference, build, cylinder_dict, sphere_quarter_dict
 

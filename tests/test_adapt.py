@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-import elastoplast.adapt as ad
-from elastoplast.adapt import AdaptOptions, Step, adapt, uniform
+import elastoplast.adapt.loop as ad
+from elastoplast.adapt.loop import AdaptOptions, Step, adapt, uniform
 
 from conftest import cylinder_dict, sphere_quarter_dict
 
@@ -82,7 +82,7 @@ def test_uniform_comparison_is_skipped_when_its_first_mesh_would_overrun(tmp_pat
     bounds: with less time left than that mesh took (made to report 1e6 s), it is skipped."""
     import json
 
-    from elastoplast.cli import main
+    from elastoplast.cli.main import main
     from test_cli import write_toml
 
     run_adapt = ad.adapt
@@ -114,7 +114,7 @@ def test_warm_start_gives_the_same_meshes_and_bounds(coarse_cylinder):
 def test_a_failed_conservative_solve_leaves_the_problems_own_bound(coarse_cylinder, monkeypatch):
     """The conservative variant's solution is only a candidate for a smaller upper
     bound: without it the bound is that of the problem's own solution."""
-    from elastoplast.bounds import upper_bound
+    from elastoplast.bounds.upper import upper_bound
 
     solve = ad._solve
     monkeypatch.setattr(ad, "_solve", lambda disc, options, start, required=True:
@@ -237,7 +237,7 @@ def test_command_time_limit_bounds_the_uniform_comparison_too(tmp_path, capsys):
     skipped, and the reason says so."""
     import json
 
-    from elastoplast.cli import main
+    from elastoplast.cli.main import main
     from test_cli import write_toml
 
     problem = write_toml(tmp_path / "p.toml", cylinder_dict(divisions=(10, 5)))

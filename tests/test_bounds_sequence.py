@@ -52,8 +52,8 @@ from test_equilibrium import closed_form_energy
 from test_patch import E, H, NU, SY, patch_problem, uniaxial_strain
 
 import elastoplast as ep
-from elastoplast import bounds as bd
-from elastoplast.equilibrium import CERTIFY_TOL, facet_measure
+from elastoplast.bounds.upper import BoundsReport, certified_bounds, contact_facets, energy_bounds
+from elastoplast.bounds.lower import CERTIFY_TOL, facet_measure
 
 LOWER_SLACK = 1e-7
 
@@ -74,18 +74,18 @@ def refined_sequence(disc: ep.Discretization, marks: list[str]) -> list[ep.Discr
     return out
 
 
-def bound_sequence(discs: list[ep.Discretization]) -> list[tuple[ep.Solution, bd.BoundsReport]]:
+def bound_sequence(discs: list[ep.Discretization]) -> list[tuple[ep.Solution, BoundsReport]]:
     """The P1 solution and the certified bounds of every mesh; the U bracket on the
     coarsest only (the finer meshes' U_h are checked against it)."""
     out = []
     for i, disc in enumerate(discs):
         sol = ep.solve(disc, "conic")
         assert sol.converged, sol.message
-        out.append((sol, bd.certified_bounds(disc, sol, bracket=i == 0)))
+        out.append((sol, certified_bounds(disc, sol, bracket=i == 0)))
     return out
 
 
-def check_sequence(results: list[tuple[ep.Solution, bd.BoundsReport]]) -> None:
+def check_sequence(results: list[tuple[ep.Solution, BoundsReport]]) -> None:
     """The three properties of a nested sequence (module docstring)."""
     for _, rep in results:
         assert rep.certified, (rep.upper.message, rep.lower.message)
@@ -128,14 +128,14 @@ def test_nested_2d_sequence_bounds_are_ordered_bracket_u_and_converge(cylinder_s
     discs, results = cylinder_sequence
     assert [d.n_elements for d in discs][:2] == [256, 1024]  # "all": 4 children per triangle
     # the refined meshes keep Γ0: the same total length (a union of the coarse facets)
-    length = [facet_measure(d.mesh.points[bd.contact_facets(d)]).sum() for d in discs]
+    length = [facet_measure(d.mesh.points[contact_facets(d)]).sum() for d in discs]
     assert np.allclose(length, length[0], rtol=1e-14)
     check_sequence(results)
 
 
 def test_nested_3d_sequence_bounds_are_ordered_bracket_u_and_converge(sphere_sequence):
     discs, results = sphere_sequence
-    area = [facet_measure(d.mesh.points[bd.contact_facets(d)]).sum() for d in discs]
+    area = [facet_measure(d.mesh.points[contact_facets(d)]).sum() for d in discs]
     assert np.allclose(area, area[0], rtol=1e-14)
     assert discs[1].n_elements > discs[0].n_elements
     check_sequence(results)
@@ -152,7 +152,7 @@ def test_patch_test_report_is_the_closed_form(dim, stress_ratio):
     disc = ep.discretize(patch_problem(dim, F))
     _, Pi = closed_form_energy(dim, F, m)
     U = uniaxial_strain(F / area, m)[0] * 2.0  # block height 2
-    rep = bd.certified_bounds(disc)
+    rep = certified_bounds(disc)
     b = rep.bounds
     assert rep.certified
     assert b.energy_lower == pytest.approx(Pi, rel=1e-8)
@@ -180,7 +180,7 @@ def test_symmetry_plane_bounds_half_the_full_model():
     assert 2 * half.n_elements == full.n_elements
     right = full.mesh.points[:, 0] >= 0
     np.testing.assert_allclose(np.unique(full.mesh.points[right], axis=0), np.unique(half.mesh.points, axis=0))
-    bh, bf = bd.energy_bounds(half), bd.energy_bounds(full)
+    bh, bf = energy_bounds(half), energy_bounds(full)
     assert bh.bounds_certified and bf.bounds_certified
     # weak duality across the two models (Π*_full = 2 Π*_half)
     assert 2 * bh.energy_lower <= bf.energy_upper
@@ -201,7 +201,7 @@ def test_expression_and_paraboloid_bound_the_same_energy_in_3d():
     data["obstacle"] = {"shape": "expression", "expression": "0.01*(x**2 + y**2)"}
     expr = build(data)
     np.testing.assert_allclose(expr.psi, parab.psi, rtol=1e-15)
-    bp, be = bd.energy_bounds(parab), bd.energy_bounds(expr)
+    bp, be = energy_bounds(parab), energy_bounds(expr)
     assert bp.bounds_certified and be.bounds_certified
     for lo in (bp.energy_lower, be.energy_lower):
         for hi in (bp.energy_upper, be.energy_upper):
@@ -218,7 +218,7 @@ def test_u_bracket_near_the_limit_load_with_perfect_plasticity():
 
     from test_limit_load import punch
 
-    from elastoplast.equilibrium import static_limit_load
+    from elastoplast.bounds.lower import static_limit_load
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the perfect-plasticity warning
@@ -227,6 +227,6 @@ def test_u_bracket_near_the_limit_load_with_perfect_plasticity():
     assert lim.certified
     disc = disc.with_force(0.9 * lim.F_lower)
     sol = ep.solve(disc, "conic")
-    rep = bd.certified_bounds(disc, sol)
+    rep = certified_bounds(disc, sol)
     assert rep.certified
     assert rep.U_lower <= sol.U <= rep.U_upper

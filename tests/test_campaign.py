@@ -24,9 +24,11 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast import campaign as cp
-from elastoplast.cli import main
-from elastoplast.store import ERROR, Store, resolve
+from elastoplast.certificate.kkt import energy_norm_sq
+from elastoplast.solvers.registry import Method
+from elastoplast.cli.campaign import compare, load_campaign, run_campaign
+from elastoplast.cli.main import main
+from elastoplast.io.store import ERROR, Store, resolve
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE = ROOT / "problems" / "cylinder_2d.toml"
@@ -44,7 +46,7 @@ def write_campaign(path: Path, sweep: str, divisions=(12, 6), solver: str = "") 
 
 def solve_alone(params: dict, divisions=(12, 6), solver: dict | None = None):
     """The case solved in this process, from the problem file, without the campaign code."""
-    data = ep.problem.read_toml(BASE)
+    data = ep.read_toml(BASE)
     data["mesh"]["divisions"] = list(divisions)
     settings = dict(solver or {})
     for key, value in params.items():
@@ -109,8 +111,8 @@ def reference_store(tmp_path_factory, client):
     tmp = tmp_path_factory.mktemp("refs")
     path = write_campaign(tmp / "c.toml", f'"load.force" = {FORCES}\nmethod = {json.dumps(METHODS)}',
                           solver="tol = 1e-10")
-    campaign = cp.load_campaign(path)
-    run = cp.run_campaign(campaign, tmp / "store", client=client, progress=False)
+    campaign = load_campaign(path)
+    run = run_campaign(campaign, tmp / "store", client=client, progress=False)
     return path, campaign, run, tmp / "store"
 
 
@@ -142,14 +144,14 @@ def test_rerun_skips_stored_cases_and_new_axis_values_add_only_new_cases(referen
     path, campaign, _, shared = reference_store
     out = tmp_path / "store"
     shutil.copytree(shared, out)  # the other tests keep the shared store as it was
-    again = cp.run_campaign(cp.load_campaign(path), out, client=client, progress=False)
+    again = run_campaign(load_campaign(path), out, client=client, progress=False)
     assert again.statuses == {} and set(again.skipped) == {c.case_id for c in campaign.cases}
     before = {r["id"]: r["finished_at"] for r in index_rows(out)}
 
     grown = write_campaign(tmp_path / "grown.toml", f'"load.force" = {FORCES + [2000.0]}\n'
                            f"method = {json.dumps(METHODS)}", solver="tol = 1e-10")
-    bigger = cp.load_campaign(grown)
-    run = cp.run_campaign(bigger, out, client=client, progress=False)
+    bigger = load_campaign(grown)
+    run = run_campaign(bigger, out, client=client, progress=False)
     assert len(run.statuses) == len(METHODS)  # one new force value times the methods
     assert {json.loads(Store(out).row(i)["params"])["load.force"] for i in run.statuses} == {2000.0}
     after = {r["id"]: r["finished_at"] for r in index_rows(out)}
@@ -159,7 +161,7 @@ def test_rerun_skips_stored_cases_and_new_axis_values_add_only_new_cases(referen
 
 def test_compare_reports_errors_against_each_reference(reference_store, client, tmp_path):
     _, campaign, _, out = reference_store
-    report = cp.compare(out, "conic-displacement", options={"tol": 1e-10}, client=client, progress=False,
+    report = compare(out, "conic-displacement", options={"tol": 1e-10}, client=client, progress=False,
                         out=tmp_path / "report")
     store = Store(out)
     assert len(report.rows) == len(campaign.cases) and report.summary["n_problems"] == len(FORCES)
@@ -169,8 +171,8 @@ def test_compare_reports_errors_against_each_reference(reference_store, client, 
                                   solver={"tol": 1e-10})
         # the definitions of the report, computed here by hand
         assert row["U_rel"] == pytest.approx(abs(alone.U - ref.U) / abs(ref.U), rel=1e-12, abs=1e-300)
-        num = ep.certificate.energy_norm_sq(disc, alone.sigma - ref.sigma, alone.xi - ref.xi)
-        den = ep.certificate.energy_norm_sq(disc, ref.sigma, ref.xi)
+        num = energy_norm_sq(disc, alone.sigma - ref.sigma, alone.xi - ref.xi)
+        den = energy_norm_sq(disc, ref.sigma, ref.xi)
         assert row["sigma_rel"] == pytest.approx(np.sqrt(num / den), rel=1e-12, abs=1e-300)
         assert row["time_ratio"] == pytest.approx(row["time_s"] / ref.time_s, rel=1e-12)
         if row["reference_method"] == "conic-displacement":  # the same deterministic solve
@@ -209,14 +211,14 @@ def test_case_failing_at_run_time_is_recorded_while_others_complete(tmp_path, mo
     def broken(disc, options):
         raise RuntimeError("forced failure for the test")
 
-    monkeypatch.setitem(ep.solvers.METHODS, "broken", ep.solvers.Method("broken", broken, ep.ConicOptions, "raises"))
+    monkeypatch.setitem(ep.METHODS, "broken", Method("broken", broken, ep.ConicOptions, "raises"))
     path = write_campaign(tmp_path / "c.toml", 'method = ["conic", "broken"]\n"solver.max_iter" = [1, 200]')
-    campaign = cp.load_campaign(path)
+    campaign = load_campaign(path)
     out = tmp_path / "store"
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None,
                       scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}, silence_logs=logging.ERROR) as cluster, \
             Client(cluster) as client:
-        run = cp.run_campaign(campaign, out, client=client, progress=False)
+        run = run_campaign(campaign, out, client=client, progress=False)
         by_point = {(r["method"], json.loads(r["options"])["max_iter"]): r for r in index_rows(out)}
         assert {k: r["status"] for k, r in by_point.items()} == {
             ("conic", 1): "max_iterations", ("conic", 200): "converged", ("broken", 1): ERROR, ("broken", 200): ERROR}
@@ -227,9 +229,9 @@ def test_case_failing_at_run_time_is_recorded_while_others_complete(tmp_path, mo
         assert_store_complete(out, {c.case_id for c in campaign.cases})
 
         # resume retries what raised, keeps solver outcomes; --retry-failed re-runs those too
-        again = cp.run_campaign(campaign, out, client=client, progress=False)
+        again = run_campaign(campaign, out, client=client, progress=False)
         assert set(again.statuses) == {by_point[("broken", m)]["id"] for m in (1, 200)}
-        again = cp.run_campaign(campaign, out, client=client, progress=False, retry_failed=True)
+        again = run_campaign(campaign, out, client=client, progress=False, retry_failed=True)
         assert set(again.statuses) == set(run.failed)
         assert_store_complete(out, {c.case_id for c in campaign.cases})
 
@@ -271,7 +273,7 @@ def test_sigkill_mid_campaign_then_rerun_completes_each_case_once(tmp_path, caps
     assert main(["campaign", str(path), "--out", str(out), "--quiet", "--workers", "2"]) == 0
     line = capsys.readouterr().out
     assert f"{len(forces) - len(done)} run, {len(done)} already stored" in line, line
-    campaign = cp.load_campaign(path)
+    campaign = load_campaign(path)
     assert_store_complete(out, {c.case_id for c in campaign.cases})
     assert {r["id"]: r["finished_at"] for r in index_rows(out) if r["id"] in stamps} == stamps
 
@@ -308,7 +310,7 @@ def test_campaign_through_a_scheduler_and_two_worker_processes(tmp_path, capsys)
         assert main(["campaign", str(path), "--out", str(out), "--scheduler", address, "--quiet"]) == 0
         rows = index_rows(out)
         assert {r["worker"] for r in rows} == workers  # both worker processes took cases
-        campaign = cp.load_campaign(path)
+        campaign = load_campaign(path)
         assert_store_complete(out, {c.case_id for c in campaign.cases})
         for row in rows[:2]:  # the same results as solving alone
             _, alone = solve_alone(json.loads(row["params"]), solver={"tol": 1e-10})
@@ -330,7 +332,7 @@ def test_campaign_through_a_scheduler_and_two_worker_processes(tmp_path, capsys)
 
 def test_case_id_hashes_the_resolved_input(tmp_path, monkeypatch):
     """Equal inputs resolve alike; any change of mesh, parameter, tolerance or version is a new case."""
-    data = ep.problem.read_toml(BASE)
+    data = ep.read_toml(BASE)
     data["mesh"]["divisions"] = [12, 6]
 
     def case_id(d, method="conic", options=None):
@@ -346,14 +348,14 @@ def test_case_id_hashes_the_resolved_input(tmp_path, monkeypatch):
     graded["mesh"]["grading"] = 1.5  # same sizes, other node positions
     assert len({ref, case_id(finer), case_id(graded), case_id(data, options={"tol": 1e-9}),
                 case_id(data, method="conic-displacement")}) == 5
-    monkeypatch.setattr("elastoplast.store.__version__", "0.0.0-test")
+    monkeypatch.setattr("elastoplast.io.store.__version__", "0.0.0-test")
     assert case_id(data) != ref
 
 
 def test_store_write_is_atomic_over_a_crash_between_folder_and_index(tmp_path):
     """A folder moved into place without its row (a crash before indexing) and a
     left-over temporary folder are both invisible and repaired on the next write."""
-    from elastoplast.store import case_record
+    from elastoplast.io.store import case_record
 
     disc, sol = solve_alone({"load.force": 1000.0})
     inp = resolve(disc.problem, "conic", {})
@@ -395,10 +397,10 @@ def test_adaptive_target_per_case(client, tmp_path):
     path = tmp_path / "c.toml"
     path.write_text(f'[campaign]\nproblem = "{BASE}"\n\n[mesh]\ndivisions = [10, 5]\n\n[solver]\nmethod = "newton"\n\n'
                     '[adapt]\nbracket = "final"\ncompare_uniform = false\n\n[sweep]\n"adapt.rtol" = [0.2, 0.05]\n')
-    campaign = cp.load_campaign(path)
+    campaign = load_campaign(path)
     assert len(campaign.cases) == 2 and all("adapt" in c.input.spec for c in campaign.cases)
     out = tmp_path / "store"
-    cp.run_campaign(campaign, out, client=client, progress=False)
+    run_campaign(campaign, out, client=client, progress=False)
     store = Store(out)
     rows = {json.loads(r["params"])["adapt.rtol"]: r for r in store.rows()}
     for rtol, row in rows.items():
@@ -414,5 +416,5 @@ def test_adaptive_target_per_case(client, tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text(path.read_text().replace('[0.2, 0.05]', '[0.2, 0.0]'))
     with pytest.raises(ep.InputError) as exc:
-        cp.load_campaign(bad)
+        load_campaign(bad)
     assert exc.value.field == "sweep.adapt.rtol"

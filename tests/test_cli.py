@@ -13,8 +13,8 @@ import meshio
 import numpy as np
 import pytest
 
-from elastoplast.cli import main
-from elastoplast.problem import read_toml
+from elastoplast.cli.main import main
+from elastoplast.problem.definition import read_toml
 
 from conftest import PROBLEMS
 
@@ -73,7 +73,7 @@ def test_solve_writes_vtu_and_summary(tmp_path, method, capsys):
 
 def test_default_problem_runs(tmp_path, monkeypatch):
     """With no problem file the built-in default is solved (a smaller copy here)."""
-    import elastoplast.cli as cli
+    import elastoplast.cli.main as cli
 
     data = read_toml(cli.default_problem_path())
     data["mesh"]["divisions"] = [6, 6, 3]

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast.adapt import AdaptOptions, adapt
-from elastoplast.cli import main
-from elastoplast.mesh import read_mesh
+from elastoplast.adapt.loop import AdaptOptions, adapt
+from elastoplast.cli.main import main
+from elastoplast.mesh.base import read_mesh
 
 from conftest import build
 from test_cli import small_cylinder, write_toml

@@ -27,9 +27,13 @@ from test_limit_load import PRANDTL_FORCE, punch
 from test_patch import E, H, NU, SY, patch_problem, uniaxial_strain
 
 import elastoplast as ep
-from elastoplast import equilibrium as eq
-from elastoplast.discretize import _element_geometry
-from elastoplast.mesh import _boundary_facets
+from elastoplast.fem.material import n_components
+from elastoplast.solvers.conic import deviatoric_basis
+from elastoplast.bounds.lower import (CERTIFY_TOL, LowerBoundOptions, _clarabel, _field, _repaired_field, _setup,
+    certify_static, facet_measure, facet_topology, lower_bound_program, mass_matrix, outward_normals, psi_weights,
+    repair_static, solve_lower_bound, static_limit_load, traction_operator)
+from elastoplast.fem.discretize import _element_geometry
+from elastoplast.mesh.base import _boundary_facets
 
 
 def closed_form_energy(dim: int, F: float, m: ep.Material) -> tuple[float, float]:
@@ -37,7 +41,7 @@ def closed_form_energy(dim: int, F: float, m: ep.Material) -> tuple[float, float
     and Pi* = |Omega| W(eps) - F U with W from the return mapping (docs/bounds.md)."""
     A_bottom, height = (3.0, 2.0) if dim == 2 else (6.0, 2.0)
     e, _ = uniaxial_strain(F / A_bottom, m)
-    eps = np.zeros((1, ep.material.n_components(dim)))
+    eps = np.zeros((1, n_components(dim)))
     eps[0, dim - 1] = -e
     sig, xi, _ = ep.return_mapping(m, eps)
     C, A = m.stiffness(dim), m.compliance(dim)
@@ -55,12 +59,12 @@ def test_patch_lower_bound_is_the_closed_form(dim, stress_ratio):
     first_yield = (m.lam + 2 * m.mu) * SY / (2 * m.mu)
     F = stress_ratio * first_yield * (3.0 if dim == 2 else 6.0)
     disc = ep.discretize(patch_problem(dim, F))
-    lb = eq.solve_lower_bound(disc)
+    lb = solve_lower_bound(disc)
     J_exact, Pi_exact = closed_form_energy(dim, F, m)
     assert J_exact == pytest.approx(-Pi_exact, rel=1e-12)  # the closed form itself: no duality gap
     assert lb.certified, lb.message
     assert -lb.J == pytest.approx(Pi_exact, rel=1e-8)
-    assert lb.certificate.worst <= eq.CERTIFY_TOL
+    assert lb.certificate.worst <= CERTIFY_TOL
     # the P1 displacement solution attains the same value from above
     sol = ep.solve(disc, "conic")
     assert sol.value_D == pytest.approx(Pi_exact, rel=1e-8)
@@ -75,13 +79,13 @@ def test_patch_lower_bound_is_the_closed_form(dim, stress_ratio):
 @pytest.fixture(scope="module")
 def cylinder_small():
     disc = build(cylinder_dict(divisions=(24, 12)))
-    return disc, eq.solve_lower_bound(disc)
+    return disc, solve_lower_bound(disc)
 
 
 def test_facet_topology_counts(cylinder_small):
     disc, _ = cylinder_small
     mesh = disc.mesh
-    topo = eq.facet_topology(mesh, disc.problem.boundary)
+    topo = facet_topology(mesh, disc.problem.boundary)
     d = mesh.dim
     # every element facet is counted once as boundary or twice as interior
     assert 2 * topo.interior_elements.shape[0] + topo.boundary_elements.size == mesh.n_elements * (d + 1)
@@ -102,7 +106,7 @@ def test_certificate_refuses_perturbed_fields(cylinder_small):
     disc, lb = cylinder_small
     assert lb.certified, lb.message
     f = lb.field
-    cert = lambda g: eq.certify_static(disc, g)  # noqa: E731
+    cert = lambda g: certify_static(disc, g)  # noqa: E731
     tau = f.tau.copy()
     e, a = np.unravel_index(np.argmax(np.linalg.norm(tau, axis=2)), tau.shape[:2])
     tau[e, a, 0] += 1e-9 * lb.certificate.scale  # one component of one vertex value
@@ -118,7 +122,7 @@ def test_certificate_refuses_perturbed_fields(cylinder_small):
     eta.flat[worst] = vm.flat[worst] - disc.material.yield_stress - 1e-6 * disc.material.yield_stress
     bad = cert(replace(f, eta=eta))
     assert bad.failed == ("yield_excess",)
-    bad = eq.certify_static(disc.with_force(disc.force * (1 + 1e-9)), f)  # a field for another load
+    bad = certify_static(disc.with_force(disc.force * (1 + 1e-9)), f)  # a field for another load
     assert bad.failed == ("force_balance",)
 
 
@@ -127,17 +131,17 @@ def test_certificate_refuses_a_dropped_traction_row_and_raw_solver_output():
     jump there, which the certificate names; the raw interior point (before the
     repair) fails too: its residuals are at the solver's tolerance."""
     disc = build(cylinder_dict(divisions=(16, 8)))
-    opt = eq.LowerBoundOptions()
-    s = eq._setup(disc, opt)
+    opt = LowerBoundOptions()
+    s = _setup(disc, opt)
     q_nd = s.psi.q / (s.units.displacement * s.units.length ** (disc.dim - 1))
-    prog = eq.lower_bound_program(s.nd, s.topo, s.grads, q_nd)
-    _, _, x, _, _ = eq._clarabel(prog, opt)
-    raw = eq.certify_static(disc, eq._field(s, prog, x, disc.force))
+    prog = lower_bound_program(s.nd, s.topo, s.grads, q_nd)
+    _, _, x, _, _ = _clarabel(prog, opt)
+    raw = certify_static(disc, _field(s, prog, x, disc.force))
     assert not raw.passed
 
     # drop the tangential-traction row of the most loaded interior facet vertex
     n, d = disc.n_elements, disc.dim
-    field = eq._repaired_field(disc, s, prog, x)[0]
+    field = _repaired_field(disc, s, prog, x)[0]
     ie, iv = s.topo.interior_elements[:, 0], s.topo.interior_vertices[:, 0]
     load = np.linalg.norm(field.tau[ie[:, None], iv], axis=2).max(axis=1)
     f = int(np.argmax(load))
@@ -146,22 +150,22 @@ def test_certificate_refuses_a_dropped_traction_row_and_raw_solver_output():
     keep[row] = False
     cones = [type(prog.cones[0])(prog.n_eq - 1)] + prog.cones[1:]
     dropped = replace(prog, A=prog.A[keep].tocsc(), b=prog.b[keep], cones=cones, n_eq=prog.n_eq - 1)
-    _, _, x2, obj2, _ = eq._clarabel(dropped, opt)
-    field2, resid, _ = eq._repaired_field(disc, s, dropped, x2)
+    _, _, x2, obj2, _ = _clarabel(dropped, opt)
+    field2, resid, _ = _repaired_field(disc, s, dropped, x2)
     assert resid < 1e-14
-    bad = eq.certify_static(disc, field2)
+    bad = certify_static(disc, field2)
     assert bad.failed == ("traction_jump",)
 
 
 def cvxpy_lower_bound(disc: ep.Discretization) -> float:
     """The equilibrium-element program written again in CVXPY, from unit outward facet
-    normals and measures (eq.outward_normals); the unknowns are in units of the mean
+    normals and measures (outward_normals); the unknowns are in units of the mean
     contact pressure S and lengths in units of the mesh's extent. Returns its optimum J."""
     import cvxpy as cp
 
     mesh, m, d, k = disc.mesh, disc.material, disc.dim, disc.k
     n = disc.n_elements
-    topo = eq.facet_topology(mesh, disc.problem.boundary)
+    topo = facet_topology(mesh, disc.problem.boundary)
     S = disc.force / disc.contact_area.sum()  # stress unit
     tau = cp.Variable(((d + 1) * n, k))  # row e (d+1) + a
     eta = cp.Variable((d + 1) * n)
@@ -170,15 +174,15 @@ def cvxpy_lower_bound(disc: ep.Discretization) -> float:
 
     def traction(elements, local_vertices, nodes, j):
         """tau n at facet vertex j of each facet, as a (facets, d) expression."""
-        nrm, _ = eq.outward_normals(mesh, elements, nodes)
+        nrm, _ = outward_normals(mesh, elements, nodes)
         t = sel(elements * (d + 1) + local_vertices[:, j]) @ tau  # (m, k)
-        N = eq.traction_operator(nrm)  # (m, d, k)
+        N = traction_operator(nrm)  # (m, d, k)
         return cp.hstack([cp.reshape(cp.sum(cp.multiply(N[:, r, :], t), axis=1), (-1, 1), order="F") for r in range(d)])
 
     cons = []
     _, grads = _element_geometry(mesh)
     for r in range(d):  # div tau = 0
-        cons.append(sum(cp.sum(cp.multiply(eq.traction_operator(grads[:, a])[:, r, :], sel(np.arange(n) * (d + 1) + a) @ tau),
+        cons.append(sum(cp.sum(cp.multiply(traction_operator(grads[:, a])[:, r, :], sel(np.arange(n) * (d + 1) + a) @ tau),
                                axis=1) for a in range(d + 1)) == 0)
     for j in range(d):
         cons.append(traction(topo.interior_elements[:, 0], topo.interior_vertices[:, 0], topo.interior_nodes, j)
@@ -192,17 +196,17 @@ def cvxpy_lower_bound(disc: ep.Discretization) -> float:
                 cons.append(pick(np.flatnonzero(zero[:, r])) @ t[:, r] == 0)
         ci = topo.contact_index
         cons.append(pick(ci) @ t[:, d - 1] == lam[np.arange(ci.size) * d + j])
-    measure = eq.facet_measure(mesh.points[topo.contact_facets])
+    measure = facet_measure(mesh.points[topo.contact_facets])
     ell = disc.length_scale
     cons += [lam >= 0, cp.sum(cp.multiply(np.repeat(measure / (d * ell ** (d - 1)), d), lam)) == disc.force / (S * ell ** (d - 1))]
-    Q = ep.conic.deviatoric_basis(k)
+    Q = deviatoric_basis(k)
     cons.append(cp.SOC(m.yield_stress / S + eta, np.sqrt(1.5) * (tau @ Q).T, axis=0))
-    M = eq.mass_matrix(d)
+    M = mass_matrix(d)
     L = np.linalg.cholesky(np.kron(np.diag(disc.volumes / ell**d), M))  # vertex mass matrix
     unit = S**2 / m.E * ell**d  # energy of the unknowns' units
     energy = 0.5 * cp.sum_squares(L.T @ (tau @ np.linalg.cholesky(m.compliance(d) * m.E)))
     energy += 0.5 * cp.sum_squares(L.T @ eta) * m.E / m.hardening
-    psi = eq.psi_weights(disc, topo).q.ravel()
+    psi = psi_weights(disc, topo).q.ravel()
     prob = cp.Problem(cp.Minimize(energy + psi @ lam * S / unit), cons)
     prob.solve(solver=cp.CLARABEL, tol_gap_abs=1e-10, tol_gap_rel=1e-10, tol_feas=1e-10)
     assert prob.status == cp.OPTIMAL
@@ -213,7 +217,7 @@ def cvxpy_lower_bound(disc: ep.Discretization) -> float:
 def test_cvxpy_model_agrees(case):
     data = cylinder_dict(divisions=(8, 4)) if case == "cylinder" else sphere_quarter_dict(divisions=(3, 3, 2))
     disc = build(data)
-    lb = eq.solve_lower_bound(disc)
+    lb = solve_lower_bound(disc)
     assert lb.certified, lb.message
     assert cvxpy_lower_bound(disc) == pytest.approx(lb.J_solver, rel=1e-6)
     assert lb.J == pytest.approx(lb.J_solver, rel=1e-6)  # the repair costs nothing visible
@@ -227,7 +231,7 @@ def test_lower_bound_below_the_p1_energy(case):
         disc = build(sphere_quarter_dict(divisions=(3, 3, 3)))
     else:
         disc = ep.discretize(ep.load_problem(PROBLEMS / "punch_2d_gmsh.toml"))
-    lb = eq.solve_lower_bound(disc)
+    lb = solve_lower_bound(disc)
     assert lb.certified, lb.message
     sol = ep.solve(disc, "conic")
     assert sol.converged
@@ -250,7 +254,7 @@ def test_no_lower_bound_exceeds_any_upper_bound_under_refinement():
     lowers, uppers = [], []
     for div in ([8, 4], [16, 8], [32, 16]):
         disc = flat_punch(div)
-        lb = eq.solve_lower_bound(disc)
+        lb = solve_lower_bound(disc)
         assert lb.certified, lb.message
         sol = ep.solve(disc, "conic")
         assert sol.converged and sol.kkt.worst < 1e-8
@@ -266,16 +270,16 @@ def test_static_limit_load_below_prandtl():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         disc = punch("crossed")
-    lim = eq.static_limit_load(disc)
+    lim = static_limit_load(disc)
     assert lim.certified, lim.message
     assert lim.F_lower <= PRANDTL_FORCE  # lower-bound theorem: F_lower <= F_c (Prandtl's field fits the block)
     assert lim.F_lower >= 0.6 * PRANDTL_FORCE  # a meaningful bound on a mesh of spacing w/6 under the punch
     assert lim.certificate.yield_excess == 0.0
     # below it the H = 0 energy program has a certified field; above it none exists
-    lb = eq.solve_lower_bound(disc.with_force(0.95 * lim.F_lower))
+    lb = solve_lower_bound(disc.with_force(0.95 * lim.F_lower))
     assert lb.certified, lb.message
     with pytest.raises(ep.InputError, match="load.force"):
-        eq.solve_lower_bound(disc.with_force(1.05 * lim.F_lower))
+        solve_lower_bound(disc.with_force(1.05 * lim.F_lower))
 
 
 def test_expression_obstacle_is_enclosed():
@@ -287,15 +291,15 @@ def test_expression_obstacle_is_enclosed():
     data = copy.deepcopy(data)
     data["obstacle"] = {"shape": "expression", "expression": "x**2 / 80.0"}
     expr = build(data)
-    lb_p, lb_e = eq.solve_lower_bound(parab), eq.solve_lower_bound(expr)
+    lb_p, lb_e = solve_lower_bound(parab), solve_lower_bound(expr)
     assert lb_p.certified and lb_e.certified, lb_e.message
     assert "interval" in lb_e.psi_method
     sol = ep.solve(parab, "conic")
     assert -lb_e.J <= sol.value_D and -lb_p.J <= sol.value_D
     assert -lb_e.J == pytest.approx(-lb_p.J, rel=0.05)
     # weights are over-estimates of int psi b_a: compare with a fine quadrature
-    topo = eq.facet_topology(expr.mesh, expr.problem.boundary)
-    q = eq.psi_weights(expr, topo).q
+    topo = facet_topology(expr.mesh, expr.problem.boundary)
+    q = psi_weights(expr, topo).q
     X = expr.mesh.points[topo.contact_facets][:, :, 0]
     t = (np.arange(2000) + 0.5) / 2000
     x = X[:, :1] * (1 - t) + X[:, 1:] * t
@@ -307,7 +311,7 @@ def test_expression_that_cannot_be_enclosed_is_not_certified():
     data = cylinder_dict(divisions=(8, 4))
     data["obstacle"] = {"shape": "expression", "expression": "where(x > -100, x**2 / 80.0, 1 / x)"}
     disc = build(data)
-    lb = eq.solve_lower_bound(disc)
+    lb = solve_lower_bound(disc)
     assert not lb.certified
     assert "division by an interval" in lb.message
 
@@ -319,12 +323,12 @@ def test_bad_input():
     groups = dict(mesh.groups)
     groups["ghost"] = np.array([[0, mesh.n_nodes - 1]])
     with pytest.raises(ep.InputError, match="boundary.contact"):
-        eq.facet_topology(ep.Mesh(mesh.points, mesh.cells, groups),
+        facet_topology(ep.Mesh(mesh.points, mesh.cells, groups),
                           ep.Boundary(clamped=(), contact=("ghost",)))
     # a field on other contact facets
-    lb = eq.solve_lower_bound(disc)
+    lb = solve_lower_bound(disc)
     with pytest.raises(ep.InputError, match="contact_facets"):
-        eq.certify_static(disc, replace(lb.field, contact_facets=lb.field.contact_facets[::-1]))
+        certify_static(disc, replace(lb.field, contact_facets=lb.field.contact_facets[::-1]))
 
 
 def test_repair_handles_redundant_rows():
@@ -341,13 +345,13 @@ def test_repair_handles_redundant_rows():
             "obstacle": {"shape": "flat"},
             "load": {"force": 100.0},
         }))
-    opt = eq.LowerBoundOptions()
-    s = eq._setup(disc, opt)
-    prog = eq.lower_bound_program(s.nd, s.topo, s.grads, s.psi.q)
+    opt = LowerBoundOptions()
+    s = _setup(disc, opt)
+    prog = lower_bound_program(s.nd, s.topo, s.grads, s.psi.q)
     A = prog.A[: prog.n_eq].toarray()
     assert np.linalg.matrix_rank(A) < A.shape[0]
-    _, _, x, _, _ = eq._clarabel(prog, opt)
-    _, resid, _ = eq.repair_static(prog, x)
+    _, _, x, _, _ = _clarabel(prog, opt)
+    _, resid, _ = repair_static(prog, x)
     assert resid < 1e-14
-    lb = eq.solve_lower_bound(disc)
+    lb = solve_lower_bound(disc)
     assert lb.certified, lb.message

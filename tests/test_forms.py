@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast.conic import ConicOptions
-from elastoplast.certificate import energy_norm_sq
+from elastoplast.solvers.conic import ConicOptions
+from elastoplast.certificate.kkt import energy_norm_sq
 
 from conftest import build, cylinder_dict, sphere_quarter_dict
 

@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast.cli import main
-from elastoplast.iteration import within_tolerance
-from elastoplast.options import LOOSEST_TOL, MAX_ITER_CEILING, TIGHTEST_TOL
-from elastoplast.output import OUTPUT_MARKER, json_text, write_results
+from elastoplast.solvers.registry import Method
+from elastoplast.cli.main import main
+from elastoplast.solvers.loop import within_tolerance
+from elastoplast.problem.options import LOOSEST_TOL, MAX_ITER_CEILING, TIGHTEST_TOL
+from elastoplast.io.output import OUTPUT_MARKER, json_text, write_results
 
 from conftest import PROBLEMS, build
 from test_cli import small_cylinder, write_toml
@@ -180,7 +181,7 @@ def test_out_pointing_at_a_file_is_refused_before_the_solve(problem_file, tmp_pa
     def must_not_run(*args, **kwargs):
         raise AssertionError("the solve ran before --out was checked")
 
-    monkeypatch.setattr(ep.solvers, "solve", must_not_run)
+    monkeypatch.setattr("elastoplast.solvers.registry.solve", must_not_run)
     code, line = run(capsys, "solve", problem_file, "--out", target)
     assert code == 2 and line.startswith("error: --out:") and "not a folder" in line, line
     assert target.read_text() == "mine"
@@ -199,7 +200,7 @@ def test_internal_error_is_one_line_with_exit_3(problem_file, tmp_path, capsys, 
     def broken(disc, options):
         raise ZeroDivisionError("deep inside a solver")
 
-    monkeypatch.setitem(ep.solvers.METHODS, "conic", ep.solvers.Method("conic", broken, ep.ConicOptions, "broken"))
+    monkeypatch.setitem(ep.METHODS, "conic", Method("conic", broken, ep.ConicOptions, "broken"))
     monkeypatch.delenv("ELASTOPLAST_DEBUG", raising=False)
     code = main(["solve", str(problem_file), "--quiet", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err.strip().splitlines()
@@ -260,7 +261,7 @@ def test_failed_write_leaves_the_earlier_output_intact(small_disc, tmp_path, mon
     def broken_vtu(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr(ep.output, "write_vtu", broken_vtu)
+    monkeypatch.setattr("elastoplast.io.output.write_vtu", broken_vtu)
     with pytest.raises(OSError):
         write_results(out, small_disc, sol)
     assert (out / "summary.json").read_text() == before
@@ -293,7 +294,7 @@ def test_absurd_force_is_refused(problem_file, tmp_path, capsys):
 def test_campaign_checks_problem_dependent_options_before_running(tmp_path):
     """Uzawa's step must lie below 2 / lambda_max(C) of the material: a campaign point
     beyond it is refused when the campaign is loaded, naming the axis."""
-    from elastoplast.campaign import load_campaign
+    from elastoplast.cli.campaign import load_campaign
 
     path = tmp_path / "c.toml"
     path.write_text(f'[campaign]\nproblem = "{PROBLEMS / "cylinder_2d.toml"}"\n[mesh]\ndivisions = [20, 10]\n'
@@ -324,7 +325,7 @@ def test_newton_starts_feasible_when_the_obstacle_starts_above_the_plane():
     below 0 on a coarse ungraded mesh): u = 0 is not in K_h there, and Newton diverged at
     iteration 0. It now starts from the projection of 0 and agrees with the conic
     reference (the same discrete problem: U to 1e-8)."""
-    from elastoplast.bounds import conservative_discretization
+    from elastoplast.bounds.upper import conservative_discretization
 
     data = small_cylinder()
     data["mesh"].update(divisions=[10, 5], grading=1.0)
@@ -398,7 +399,7 @@ def test_option_of_the_wrong_type_is_refused(problem_file, tmp_path, capsys):
 def test_campaign_refuses_an_adaptive_target_with_h0_before_running(tmp_path):
     """An `[adapt]` table on an H = 0 problem ran, and was stored as a failed case;
     adapt cannot run it, so the point is refused when the campaign is loaded."""
-    from elastoplast.campaign import load_campaign
+    from elastoplast.cli.campaign import load_campaign
     from test_commands import half_punch
 
     write_toml(tmp_path / "p.toml", half_punch())
@@ -410,8 +411,8 @@ def test_campaign_refuses_an_adaptive_target_with_h0_before_running(tmp_path):
 
 
 def _api_calls(disc):
-    from elastoplast.adapt import adapt
-    from elastoplast.bounds import certified_bounds
+    from elastoplast.adapt.loop import adapt
+    from elastoplast.bounds.upper import certified_bounds
 
     return {
         "with_force(-1)": (lambda: disc.with_force(-1.0), "load.force"),
@@ -430,7 +431,7 @@ def _api_calls(disc):
         "discretize(dict)": (lambda: ep.discretize({"mesh": {}}), "problem"),
         "load_problem(None)": (lambda: ep.load_problem(None), "problem"),
         "read_mesh(None)": (lambda: ep.read_mesh(None), "mesh.file"),
-        "read_toml(5)": (lambda: ep.problem.read_toml(5), "problem"),
+        "read_toml(5)": (lambda: ep.read_toml(5), "problem"),
         "solve_lower_bound(disc.problem)": (lambda: ep.solve_lower_bound(disc.problem), "disc"),
     }
 
@@ -447,7 +448,7 @@ def test_python_entry_points_refuse_bad_arguments_naming_them(small_disc, name):
 
 def test_python_entry_points_take_options_as_mappings():
     """One option path: a mapping is checked like an options object (was AttributeError)."""
-    from elastoplast.limit import kinematic_limit_load
+    from elastoplast.bounds.limit import kinematic_limit_load
 
     punch = build(__import__("test_commands").half_punch())
     with pytest.raises(ep.InputError) as exc:
@@ -461,7 +462,7 @@ def test_limit_refuses_a_mesh_too_large_before_the_kinematic_program(tmp_path, c
     allocated until the process aborted (`memory allocation failed`, exit 134); 12,288
     ran past a 20 s --time-limit for minutes. The static program's size limit (Clarabel,
     8,000 tetrahedra) now refuses the mesh before either program runs."""
-    from elastoplast import limit
+    import elastoplast.bounds.limit as limit
 
     def must_not_run(*args, **kwargs):
         raise AssertionError("the kinematic program ran before the size check")
@@ -499,7 +500,7 @@ def test_full_disk_names_out_and_keeps_the_earlier_output(problem_file, tmp_path
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(ep.output, "write_vtu", full)
+    monkeypatch.setattr("elastoplast.io.output.write_vtu", full)
     code, line = run(capsys, "solve", problem_file, "--quiet", "--out", out)
     assert code == 2 and line.startswith("error: --out:") and "No space left" in line, line
     assert sorted(p.name for p in out.iterdir()) == before
@@ -548,9 +549,9 @@ def test_lower_bound_that_cannot_fit_in_memory_is_refused_before_the_solve(probl
     LOWER_BOUND_BYTES_PER_ELEMENT per element (x SEQUENCE_MEMORY_FACTOR with the U
     bracket, two more programs in the same process); 2 MB cannot hold the 400-triangle
     program (18 MB), so `bounds` refuses before the P1 solve and writes nothing."""
-    from elastoplast.adapt import AdaptOptions, lower_bound_limit
-    from elastoplast.checks import MEMORY_ENV
-    from elastoplast.equilibrium import (LOWER_BOUND_BYTES_PER_ELEMENT, SEQUENCE_MEMORY_FACTOR, LowerBoundOptions,
+    from elastoplast.adapt.loop import AdaptOptions, lower_bound_limit
+    from elastoplast.mesh.checks import MEMORY_ENV
+    from elastoplast.bounds.lower import (LOWER_BOUND_BYTES_PER_ELEMENT, SEQUENCE_MEMORY_FACTOR, LowerBoundOptions,
                                          solve_lower_bound)
     from elastoplast.errors import InputError
 
@@ -596,19 +597,19 @@ def test_adapt_plans_under_memory_and_keeps_its_steps_when_refused_mid_run(monke
     mesh instead of losing every step; the U bracket of a refused program is NaN."""
     import warnings
 
-    from elastoplast import adapt as ad
-    from elastoplast import bounds as bd
-    from elastoplast import equilibrium as eq
-    from elastoplast.checks import MEMORY_ENV
+    from elastoplast.adapt.loop import AdaptOptions, adapt, lower_bound_budget
+    from elastoplast.bounds.upper import combine, u_bracket_of, upper_bound
+    import elastoplast.bounds.lower as eq
+    from elastoplast.mesh.checks import MEMORY_ENV
     from elastoplast.errors import InputError
 
     data = small_cylinder()
     data["mesh"]["divisions"] = [10, 5]  # 100 triangles: 4.5 MB for one program, 9 MB in a row
     problem = ep.problem_from_dict(data, base_dir=PROBLEMS)
     monkeypatch.setenv(MEMORY_ENV, "6M")
-    assert ad.lower_bound_budget(2, ad.AdaptOptions())[0] == "the memory available to the lower bound"
+    assert lower_bound_budget(2, AdaptOptions())[0] == "the memory available to the lower bound"
     with pytest.raises(InputError) as info:
-        ad.adapt(problem, ad.AdaptOptions(rtol=0.01, bracket="never", compare_uniform=False))
+        adapt(problem, AdaptOptions(rtol=0.01, bracket="never", compare_uniform=False))
     assert info.value.field == "mesh" and "memory" in info.value.message
     monkeypatch.delenv(MEMORY_ENV)
     real, calls = eq.solve_lower_bound, []
@@ -620,15 +621,15 @@ def test_adapt_plans_under_memory_and_keeps_its_steps_when_refused_mid_run(monke
         return real(disc, options)
 
     monkeypatch.setattr(eq, "solve_lower_bound", refuse_the_second)
-    run = ad.adapt(problem, ad.AdaptOptions(rtol=1e-6, bracket="never", compare_uniform=False))
+    run = adapt(problem, AdaptOptions(rtol=1e-6, bracket="never", compare_uniform=False))
     assert len(run.steps) == 1 and len(run.meshes) == 1 and "refused the next mesh" in run.reason
     assert run.disc.n_elements == 100 and run.bounds.bounds_certified
     calls.clear()
     calls.append(0)  # the next call is refused: the bracket's first program
     disc = build(data)
-    b = bd.combine(bd.upper_bound(disc, ep.solve(disc, "newton")), real(disc))
+    b = combine(upper_bound(disc, ep.solve(disc, "newton")), real(disc))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        lo, hi, _, certified = bd.u_bracket_of(disc, b, 0.04)
+        lo, hi, _, certified = u_bracket_of(disc, b, 0.04)
     assert math.isnan(lo) and math.isnan(hi) and not certified
     assert any("no U bracket" in str(w.message) for w in caught)

@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast.checks import (MEMORY_ENV, available_memory, mesh_read_bytes, check_conforming, check_perfect_plasticity,
+from elastoplast.mesh.checks import (MEMORY_ENV, available_memory, mesh_read_bytes, check_conforming, check_perfect_plasticity,
                                 crossed_centres, discretization_bytes, parse_bytes, structured_counts)
-from elastoplast.cli import main
+from elastoplast.cli.main import main
 from elastoplast.errors import InputError
 
 from test_cli import small_cylinder, write_toml
@@ -97,7 +97,7 @@ def test_problem_paths_that_are_not_readable_files(tmp_path, capsys, monkeypatch
 def test_byte_order_mark_is_skipped(tmp_path):
     path = tmp_path / "p.toml"
     path.write_bytes(b"\xef\xbb\xbf[load]\nforce = 1.0\n")
-    assert ep.problem.read_toml(path) == {"load": {"force": 1.0}}
+    assert ep.read_toml(path) == {"load": {"force": 1.0}}
 
 
 # ============================================================================
@@ -196,7 +196,7 @@ def test_nearly_incompressible_warns(tmp_path, capsys):
 def test_absurd_divisions_are_refused_at_once(tmp_path, capsys, generator, divisions):
     data = small_cylinder()
     if generator == "box":
-        data = ep.problem.read_toml(Path(__file__).parents[1] / "problems" / "sphere_block_3d.toml")
+        data = ep.read_toml(Path(__file__).parents[1] / "problems" / "sphere_block_3d.toml")
     data["mesh"]["divisions"] = divisions
     start = time.perf_counter()
     line = refused(tmp_path, capsys, data, "mesh.divisions")
@@ -251,7 +251,7 @@ def test_memory_estimate_matches_a_real_build(dim, divisions):
     without overstating it more than 1.3 times (the model is the largest measured
     peak per element; tracemalloc sees every NumPy allocation). If the build's memory
     changes, this fails and discretization_bytes must be recounted."""
-    base = ep.problem.read_toml(Path(__file__).parents[1] / "problems" /
+    base = ep.read_toml(Path(__file__).parents[1] / "problems" /
                                 ("cylinder_2d.toml" if dim == 2 else "sphere_block_3d.toml"))
     base["mesh"]["divisions"] = divisions
     tracemalloc.start()
@@ -654,7 +654,7 @@ def test_3d_hanging_nodes(tmp_path, capsys):
 def test_hanging_node_check_alone():
     """A node on a boundary facet that is not its vertex is found by the k-d tree test
     even where ridge counts and folds cannot see it (called on its own here)."""
-    from elastoplast.checks import _check_hanging_nodes
+    from elastoplast.mesh.checks import _check_hanging_nodes
 
     pts = np.array([[0, 0], [2, 0], [1, 0], [1, 1]], float)
     facets = np.array([[0, 1], [0, 2], [2, 3]])  # node 2 lies on facet 0-1
@@ -828,7 +828,7 @@ def test_expression_that_leaves_a_gap_warns(tmp_path, capsys):
 def test_expressions_evaluate_in_floats():
     """Integer constants become float64: 2**-1 is 0.5 (not an int power error) and
     huge powers are inf at once."""
-    from elastoplast.problem import _compile_expression
+    from elastoplast.problem.definition import _compile_expression
 
     code, consts = _compile_expression("2**-1 + x*0 + 7//2", 2, "obstacle.expression")
     x = np.array([0.0, 1.0])
@@ -875,7 +875,7 @@ def test_diagonal_meshes_are_refused():
 def test_tetrahedra_are_refused():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        data = ep.problem.read_toml(Path(__file__).parents[1] / "problems" / "sphere_quarter_3d.toml")
+        data = ep.read_toml(Path(__file__).parents[1] / "problems" / "sphere_quarter_3d.toml")
         data["mesh"]["divisions"] = [3, 3, 2]
         data["material"]["hardening"] = 0.0
         problem = ep.problem_from_dict(data)

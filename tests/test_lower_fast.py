@@ -28,24 +28,26 @@ from test_equilibrium import closed_form_energy
 from test_patch import E, H, NU, SY, patch_problem
 
 import elastoplast as ep
-from elastoplast import equilibrium as eq
-from elastoplast.material import von_mises
+from elastoplast.bounds.lower import (CERTIFY_TOL, CLARABEL_MAX_ELEMENTS, LOWER_BOUND_MAX_ELEMENTS, LowerBound,
+    LowerBoundOptions, SCS_FROM_ELEMENTS_3D, SCS_YIELD_MARGIN_PER_EPS, StaticField, _yield_margin,
+    check_lower_bound_size, dual_energy, lower_bound_solver, solve_lower_bound, static_limit_load)
+from elastoplast.fem.material import von_mises
 
 EPS = 1e-6  # SCS's tolerance in these tests (the default of LowerBoundOptions.scs_eps)
-SCS = eq.LowerBoundOptions(solver="scs", scs_eps=EPS)
-CLARABEL = eq.LowerBoundOptions(solver="clarabel")
+SCS = LowerBoundOptions(solver="scs", scs_eps=EPS)
+CLARABEL = LowerBoundOptions(solver="clarabel")
 #: Clarabel's field is optimal to its gap tolerance 1e-9; 10x for the repair
 CLARABEL_SLACK = 1e-8
 #: SCS's field is optimal to about its tolerance; 100x for the scalings of its norms
 SCS_SLACK = 100 * EPS
 
 
-def assert_as_tight(scs: eq.LowerBound, ref: eq.LowerBound) -> None:
+def assert_as_tight(scs: LowerBound, ref: LowerBound) -> None:
     assert scs.certified, scs.message
     assert ref.certified, ref.message
     assert scs.solver == "scs" and ref.solver == "clarabel"
     assert "SCS: solved" in scs.message
-    assert scs.certificate.worst <= eq.CERTIFY_TOL
+    assert scs.certificate.worst <= CERTIFY_TOL
     assert -scs.J <= -ref.J + CLARABEL_SLACK * abs(ref.J)  # no field beats the optimum
     assert scs.J - ref.J <= SCS_SLACK * abs(ref.J)
 
@@ -55,7 +57,7 @@ def test_scs_bound_is_certified_and_as_tight_as_clarabel(case):
     """2D plane strain under a cylinder; the 3D quarter sphere (two symmetry planes, a
     curved obstacle); both with a plastic zone."""
     disc = build(cylinder_dict(divisions=(24, 12)) if case == "cylinder_2d" else sphere_quarter_dict(divisions=(3, 3, 3)))
-    scs, ref = eq.solve_lower_bound(disc, SCS), eq.solve_lower_bound(disc, CLARABEL)
+    scs, ref = solve_lower_bound(disc, SCS), solve_lower_bound(disc, CLARABEL)
     assert_as_tight(scs, ref)
     assert np.any(von_mises(scs.field.tau.reshape(-1, disc.k)) > disc.material.yield_stress)  # plastic
     assert scs.local.facet_force.sum() == pytest.approx(disc.force, rel=1e-13)  # the repaired field carries F
@@ -69,7 +71,7 @@ def test_scs_patch_bound_is_the_closed_form(dim):
     first_yield = (m.lam + 2 * m.mu) * SY / (2 * m.mu)
     F = 3.0 * first_yield * (3.0 if dim == 2 else 6.0)  # plastic
     disc = ep.discretize(patch_problem(dim, F))
-    lb = eq.solve_lower_bound(disc, SCS)
+    lb = solve_lower_bound(disc, SCS)
     _, Pi = closed_form_energy(dim, F, m)
     assert lb.certified, lb.message
     assert -lb.J <= Pi + 1e-12 * abs(Pi)  # a bound, to round-off
@@ -80,7 +82,7 @@ def test_scs_elastic_first():
     """A yield stress far above the stresses: the program is first solved without the
     cones (elastic_first), with SCS as with Clarabel."""
     disc = build(cylinder_dict(divisions=(16, 8), yield_stress=1e6))
-    assert_as_tight(eq.solve_lower_bound(disc, SCS), eq.solve_lower_bound(disc, CLARABEL))
+    assert_as_tight(solve_lower_bound(disc, SCS), solve_lower_bound(disc, CLARABEL))
 
 
 def small_punch(F: float = 1.0) -> ep.Discretization:
@@ -97,8 +99,8 @@ def small_punch(F: float = 1.0) -> ep.Discretization:
 
 def test_scs_limit_load_and_perfect_plasticity():
     disc = small_punch()
-    ref = eq.static_limit_load(disc, CLARABEL)
-    lim = eq.static_limit_load(disc, SCS)
+    ref = static_limit_load(disc, CLARABEL)
+    lim = static_limit_load(disc, SCS)
     assert ref.certified and lim.certified, lim.message
     assert lim.solver == "scs"
     # the certified F_lower of any field is at most the program's optimum, which Clarabel finds to 1e-9
@@ -107,50 +109,50 @@ def test_scs_limit_load_and_perfect_plasticity():
 
     r = 0.9
     loaded = disc.with_force(r * ref.F_lower)
-    scs, clar = eq.solve_lower_bound(loaded, SCS), eq.solve_lower_bound(loaded, CLARABEL)
+    scs, clar = solve_lower_bound(loaded, SCS), solve_lower_bound(loaded, CLARABEL)
     assert scs.certified and clar.certified, scs.message
     assert -scs.J <= -clar.J + CLARABEL_SLACK * abs(clar.J)
     # the margin's cost (module docstring): r times the limit field carries F at yield stress r sigma_y
-    scaled = eq.StaticField(r * ref.field.tau, ref.field.eta, ref.field.contact_facets, r * ref.field.lam,
+    scaled = StaticField(r * ref.field.tau, ref.field.eta, ref.field.contact_facets, r * ref.field.lam,
                             r * ref.field.force)
-    v_s0 = eq.dual_energy(loaded, scaled)
-    margin = eq._yield_margin("scs", SCS)
-    assert margin == pytest.approx(eq.SCS_YIELD_MARGIN_PER_EPS * EPS)
+    v_s0 = dual_energy(loaded, scaled)
+    margin = _yield_margin("scs", SCS)
+    assert margin == pytest.approx(SCS_YIELD_MARGIN_PER_EPS * EPS)
     allowed = margin / (1 - r) * (v_s0 - clar.J) + SCS_SLACK * abs(clar.J)
     assert scs.J - clar.J <= allowed
     # above the limit load SCS proves infeasibility too
     with pytest.raises(ep.InputError, match="load.force"):
-        eq.solve_lower_bound(disc.with_force(1.05 * ref.F_lower), SCS)
+        solve_lower_bound(disc.with_force(1.05 * ref.F_lower), SCS)
 
 
 def test_solver_choice():
     quarter = build(sphere_quarter_dict(divisions=(3, 3, 3)))
     cylinder = build(cylinder_dict(divisions=(8, 4)))
-    auto = eq.LowerBoundOptions()
-    assert eq.lower_bound_solver(cylinder, auto) == "clarabel"
-    assert quarter.n_elements < eq.SCS_FROM_ELEMENTS_3D
-    assert eq.lower_bound_solver(quarter, auto) == "clarabel"
-    assert eq.lower_bound_solver(quarter, SCS) == "scs"
+    auto = LowerBoundOptions()
+    assert lower_bound_solver(cylinder, auto) == "clarabel"
+    assert quarter.n_elements < SCS_FROM_ELEMENTS_3D
+    assert lower_bound_solver(quarter, auto) == "clarabel"
+    assert lower_bound_solver(quarter, SCS) == "scs"
     larger = build(sphere_quarter_dict(divisions=(5, 5, 4)))
-    assert larger.n_elements >= eq.SCS_FROM_ELEMENTS_3D
-    assert eq.lower_bound_solver(larger, auto) == "scs"
-    assert eq.lower_bound_solver(larger, auto, limit=True) == "clarabel"
+    assert larger.n_elements >= SCS_FROM_ELEMENTS_3D
+    assert lower_bound_solver(larger, auto) == "scs"
+    assert lower_bound_solver(larger, auto, limit=True) == "clarabel"
     with pytest.raises(ep.InputError, match="solver"):
-        eq.LowerBoundOptions(solver="admm")
+        LowerBoundOptions(solver="admm")
     with pytest.raises(ep.InputError, match="scs_eps"):
-        eq.LowerBoundOptions(scs_eps=0.0)
+        LowerBoundOptions(scs_eps=0.0)
 
 
 def test_size_limit_follows_the_solver(monkeypatch):
     """The limit-load program runs on Clarabel, whose size limit is lower than SCS's."""
     disc = build(sphere_quarter_dict(divisions=(5, 5, 4)))
-    monkeypatch.setitem(eq.CLARABEL_MAX_ELEMENTS, 3, disc.n_elements - 1)
-    eq.check_lower_bound_size(disc, eq.LowerBoundOptions())  # the energy program on SCS: accepted
+    monkeypatch.setitem(CLARABEL_MAX_ELEMENTS, 3, disc.n_elements - 1)
+    check_lower_bound_size(disc, LowerBoundOptions())  # the energy program on SCS: accepted
     with pytest.raises(ep.InputError, match="clarabel is limited to"):
-        eq.check_lower_bound_size(disc, eq.LowerBoundOptions(), limit=True)
+        check_lower_bound_size(disc, LowerBoundOptions(), limit=True)
     with pytest.raises(ep.InputError, match="mesh"):
-        eq.solve_lower_bound(disc, CLARABEL)
-    monkeypatch.setitem(eq.LOWER_BOUND_MAX_ELEMENTS, 3, disc.n_elements - 1)
+        solve_lower_bound(disc, CLARABEL)
+    monkeypatch.setitem(LOWER_BOUND_MAX_ELEMENTS, 3, disc.n_elements - 1)
     with pytest.raises(ep.InputError, match="scs is limited to"):
-        eq.check_lower_bound_size(disc, eq.LowerBoundOptions())
-    eq.check_lower_bound_size(disc, eq.LowerBoundOptions(max_elements=disc.n_elements))  # the option overrides
+        check_lower_bound_size(disc, LowerBoundOptions())
+    check_lower_bound_size(disc, LowerBoundOptions(max_elements=disc.n_elements))  # the option overrides

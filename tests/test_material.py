@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from elastoplast.material import (Material, consistent_tangent, deviator, return_mapping, von_mises)
+from elastoplast.fem.material import (Material, consistent_tangent, deviator, return_mapping, von_mises)
 
 MAT = Material(E=200e3, nu=0.3, yield_stress=250.0, hardening=2e3)
 

@@ -16,9 +16,9 @@ import pytest
 
 import elastoplast as ep
 from conftest import assert_matches_reference
-from elastoplast.material import Material, consistent_tangent, return_mapping
-from elastoplast.newton import NewtonOptions, solve_newton
-from elastoplast.problem import problem_from_dict, read_toml
+from elastoplast.fem.material import Material, consistent_tangent, return_mapping
+from elastoplast.solvers.newton import NewtonOptions, solve_newton
+from elastoplast.problem.definition import problem_from_dict, read_toml
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
 TOL = 1e-10

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import elastoplast.provenance as prov
+import elastoplast.io.provenance as prov
 
 
 def test_stamp_keeps_the_source_state_of_the_start(monkeypatch):

@@ -8,10 +8,10 @@ import re
 import shlex
 import shutil
 
-import elastoplast.cli as cli
-from elastoplast.cli import main
-from elastoplast.output import OUTPUT_MARKER
-from elastoplast.problem import read_toml
+import elastoplast.cli.main as cli
+from elastoplast.cli.main import main
+from elastoplast.io.output import OUTPUT_MARKER
+from elastoplast.problem.definition import read_toml
 
 from conftest import ROOT
 from test_cli import write_toml

@@ -34,7 +34,7 @@ import pytest
 
 import elastoplast as ep
 from conftest import build, cylinder_dict, sphere_quarter_dict
-from elastoplast.refinement import dorfler_mark, initial_state, prolong_p1, refine, shape_quality, signed_volumes
+from elastoplast.mesh.refinement import dorfler_mark, initial_state, prolong_p1, refine, shape_quality, signed_volumes
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = ROOT / "problems"

@@ -18,13 +18,15 @@ import scipy.sparse.linalg as spla
 
 import elastoplast as ep
 from conftest import build, cylinder_dict, energy_error, sphere_quarter_dict
-from elastoplast import linalg, newton, solvers
-from elastoplast.certificate import abs_transpose_product, gaps
-from elastoplast.discretize import _element_geometry, free_strain_operator, nondimensionalize
+from elastoplast.linalg.amg import FaceSystems, assemble, block_layout, bsr, contact_dofs
+from elastoplast.solvers.newton import AMG_FROM_ELEMENTS, choose_backend, energy, forcing_term
+from elastoplast.solvers.registry import CONIC_MAX_ELEMENTS
+from elastoplast.certificate.kkt import abs_transpose_product, gaps
+from elastoplast.fem.discretize import _element_geometry, free_strain_operator, nondimensionalize
 from elastoplast.errors import InputError
-from elastoplast.material import consistent_tangent
-from elastoplast.mesh import _boundary_facets, structured_mesh
-from elastoplast.uzawa import IterativeProjection
+from elastoplast.fem.material import consistent_tangent
+from elastoplast.mesh.base import _boundary_facets, structured_mesh
+from elastoplast.solvers.uzawa import IterativeProjection
 
 TOL = 1e-9
 
@@ -93,10 +95,10 @@ def test_block_assembly_matches_the_gram_product(name, request):
     for per-element tangents (with the plastic correction added to C's)."""
     disc = request.getfixturevalue(name)
     nd, units = nondimensionalize(disc)
-    lay = linalg.block_layout(nd, units.length)
+    lay = block_layout(nd, units.length)
     C = nd.material.stiffness(nd.dim)
-    data = linalg.assemble(lay, C)
-    full = linalg.bsr(lay, data).tocsr()[nd.free][:, nd.free]
+    data = assemble(lay, C)
+    full = bsr(lay, data).tocsr()[nd.free][:, nd.free]
     K = nd.weighted_gram(C)
     assert abs(full - K).max() <= 1e-12 * abs(K).max()
     rng = np.random.default_rng(0)
@@ -104,14 +106,14 @@ def test_block_assembly_matches_the_gram_product(name, request):
     _, _, tangent = consistent_tangent(nd.material, eps)
     plastic = np.flatnonzero(np.any(tangent != C, axis=(1, 2)))
     assert 0 < plastic.size < nd.n_elements
-    corrected = linalg.assemble(lay, tangent[plastic], plastic, out=data.copy(), subtract=C)
+    corrected = assemble(lay, tangent[plastic], plastic, out=data.copy(), subtract=C)
     Kt = nd.weighted_gram(tangent)
-    got = linalg.bsr(lay, corrected).tocsr()[nd.free][:, nd.free]
+    got = bsr(lay, corrected).tocsr()[nd.free][:, nd.free]
     assert abs(got - Kt).max() <= 1e-12 * abs(Kt).max()
 
 
 def test_abs_transpose_product_in_chunks(quarter, monkeypatch):
-    import elastoplast.certificate as certificate
+    import elastoplast.certificate.kkt as certificate
 
     x = np.random.default_rng(1).standard_normal(quarter.B.shape[0])
     monkeypatch.setattr(certificate, "ABS_CHUNK_ROWS", 97)
@@ -129,9 +131,9 @@ def test_bordered_system_against_a_direct_solve(quarter):
     sparse direct solution of the same matrix, also with a hierarchy built for
     another face (kept across steps)."""
     nd, units = nondimensionalize(quarter)
-    lay = linalg.block_layout(nd, units.length)
-    cdofs = linalg.contact_dofs(nd)
-    faces = linalg.FaceSystems(lay, nd.free, cdofs, linalg.assemble(lay, nd.material.stiffness(3)), reuse=True)
+    lay = block_layout(nd, units.length)
+    cdofs = contact_dofs(nd)
+    faces = FaceSystems(lay, nd.free, cdofs, assemble(lay, nd.material.stiffness(3)), reuse=True)
     n = nd.n_free + 1
     H = sp.csr_matrix(np.column_stack([faces.matvec(e) for e in np.eye(n)]))
     assert abs(H - H.T).max() <= 1e-12 * abs(H).max()
@@ -150,11 +152,11 @@ def test_bordered_system_against_a_direct_solve(quarter):
 
 def test_forcing_term():
     """Eisenstat-Walker choice 2 with the safeguard, the cap and the no-oversolving floor."""
-    assert newton.forcing_term(0.5, None, None, 1e-2, 1e-8) == 1e-2
-    assert newton.forcing_term(1e-3, 1e-1, 1e-2, 1.0, 1e-12) == pytest.approx(0.9 * 1e-4)
-    assert newton.forcing_term(0.5, 0.6, 0.9, 1.0, 1e-8) == pytest.approx(0.9 * 0.9**2)  # safeguard
-    assert newton.forcing_term(1e-6, 1e-2, 1e-2, 1e-2, 1e-8) == pytest.approx(0.1 * 1e-8 / 1e-6)  # floor
-    assert newton.forcing_term(1e-1, 1e-1, 1e-2, 1e-2, 1e-8) == 1e-2  # cap
+    assert forcing_term(0.5, None, None, 1e-2, 1e-8) == 1e-2
+    assert forcing_term(1e-3, 1e-1, 1e-2, 1.0, 1e-12) == pytest.approx(0.9 * 1e-4)
+    assert forcing_term(0.5, 0.6, 0.9, 1.0, 1e-8) == pytest.approx(0.9 * 0.9**2)  # safeguard
+    assert forcing_term(1e-6, 1e-2, 1e-2, 1e-2, 1e-8) == pytest.approx(0.1 * 1e-8 / 1e-6)  # floor
+    assert forcing_term(1e-1, 1e-1, 1e-2, 1e-2, 1e-8) == 1e-2  # cap
 
 
 # ----------------------------------------------------------------------------
@@ -220,17 +222,17 @@ def test_iterative_projection_meets_its_optimality_conditions(name, request):
 
 
 def test_auto_takes_amg_from_the_crossover(quarter, monkeypatch):
-    monkeypatch.setitem(newton.AMG_FROM_ELEMENTS["pardiso"], 3, quarter.n_elements)
-    monkeypatch.setitem(newton.AMG_FROM_ELEMENTS["splu"], 3, quarter.n_elements)
-    assert newton.choose_backend(quarter, "auto") == "amg"
-    assert newton.choose_backend(quarter, "splu") == "splu"
-    monkeypatch.setitem(newton.AMG_FROM_ELEMENTS["pardiso"], 3, quarter.n_elements + 1)
-    monkeypatch.setitem(newton.AMG_FROM_ELEMENTS["splu"], 3, quarter.n_elements + 1)
-    assert newton.choose_backend(quarter, "auto") in ("pardiso", "splu")
+    monkeypatch.setitem(AMG_FROM_ELEMENTS["pardiso"], 3, quarter.n_elements)
+    monkeypatch.setitem(AMG_FROM_ELEMENTS["splu"], 3, quarter.n_elements)
+    assert choose_backend(quarter, "auto") == "amg"
+    assert choose_backend(quarter, "splu") == "splu"
+    monkeypatch.setitem(AMG_FROM_ELEMENTS["pardiso"], 3, quarter.n_elements + 1)
+    monkeypatch.setitem(AMG_FROM_ELEMENTS["splu"], 3, quarter.n_elements + 1)
+    assert choose_backend(quarter, "auto") in ("pardiso", "splu")
 
 
 def test_conic_refuses_beyond_its_size(quarter, monkeypatch):
-    monkeypatch.setitem(solvers.CONIC_MAX_ELEMENTS, 3, quarter.n_elements - 1)
+    monkeypatch.setitem(CONIC_MAX_ELEMENTS, 3, quarter.n_elements - 1)
     with pytest.raises(InputError) as err:
         ep.solve(quarter, "conic")
     assert err.value.field == "method"
@@ -241,11 +243,11 @@ def test_conic_refuses_beyond_its_size(quarter, monkeypatch):
 
 def test_newton_energy_is_the_displacement_form(quarter):
     """The line search's energy from one return mapping equals value(D) of solution.py."""
-    from elastoplast.material import return_mapping
-    from elastoplast.solution import value_displacement_form
+    from elastoplast.fem.material import return_mapping
+    from elastoplast.certificate.solution import value_displacement_form
 
     nd, _ = nondimensionalize(quarter)
     u = 3.0 * np.random.default_rng(4).standard_normal(nd.n_free)
     sigma, xi, kappa = return_mapping(nd.material, nd.strain(u))
     assert kappa.max() > 0 and kappa.min() == 0
-    assert newton.energy(nd, sigma, xi, kappa, 0.7) == pytest.approx(value_displacement_form(nd, u, 0.7), rel=1e-12)
+    assert energy(nd, sigma, xi, kappa, 0.7) == pytest.approx(value_displacement_form(nd, u, 0.7), rel=1e-12)

@@ -34,8 +34,8 @@ def test_quarter_model_reproduces_full_model():
 
 
 def test_shipped_quarter_problem_is_a_quarter_of_the_default():
-    q = ep.problem.read_toml(PROBLEMS / "sphere_quarter_3d.toml")
-    f = ep.problem.read_toml(PROBLEMS / "sphere_block_3d.toml")
+    q = ep.read_toml(PROBLEMS / "sphere_quarter_3d.toml")
+    f = ep.read_toml(PROBLEMS / "sphere_block_3d.toml")
     assert q["load"]["force"] * 4 == f["load"]["force"]
     assert [2 * s for s in q["mesh"]["size"][:2]] == f["mesh"]["size"][:2]
     assert [2 * d for d in q["mesh"]["divisions"][:2]] == f["mesh"]["divisions"][:2]

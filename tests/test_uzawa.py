@@ -12,11 +12,11 @@ import pytest
 
 import elastoplast as ep
 from conftest import assert_matches_reference, energy_error
-from elastoplast.certificate import gaps
-from elastoplast.cli import main
-from elastoplast.discretize import nondimensionalize
-from elastoplast.problem import read_toml
-from elastoplast.uzawa import (
+from elastoplast.certificate.kkt import gaps
+from elastoplast.cli.main import main
+from elastoplast.fem.discretize import nondimensionalize
+from elastoplast.problem.definition import read_toml
+from elastoplast.solvers.uzawa import (
     FACTORIZATIONS,
     UzawaOptions,
     contact_operators,

@@ -22,9 +22,9 @@ import time
 from pathlib import Path
 
 import elastoplast as ep
-from elastoplast.adapt import AdaptOptions, Step, elements_at_gap, fitted_rate, uniform
-from elastoplast.problem import read_toml
-from elastoplast.provenance import run_record
+from elastoplast.adapt.loop import AdaptOptions, Step, elements_at_gap, fitted_rate, uniform
+from elastoplast.problem.definition import read_toml
+from elastoplast.io.provenance import run_record
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]

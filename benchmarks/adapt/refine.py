@@ -1,5 +1,5 @@
 """Side study for issue 11, part 1: conforming bisection refinement
-(``elastoplast.refinement``) at a million elements, and element shapes under many
+(``elastoplast.mesh.refinement``) at a million elements, and element shapes under many
 rounds of refinement concentrated at the contact centre.
 
 Sections:
@@ -139,7 +139,7 @@ def peak_rss_mb() -> float:
 
 
 def child(spec: dict) -> dict:
-    from elastoplast.refinement import initial_state, refine
+    from elastoplast.mesh.refinement import initial_state, refine
 
     kind, arg = spec["mesh"]
     mesh = make_mesh(kind, arg, Path(spec["tmp"]))
@@ -167,7 +167,7 @@ def child(spec: dict) -> dict:
 
 
 def run_timing(cases: list[dict], tmp: Path) -> list[dict]:
-    from elastoplast.provenance import run_child
+    from elastoplast.io.provenance import run_child
 
     rows = []
     for spec in cases:
@@ -205,7 +205,7 @@ def facet_angles(mesh) -> np.ndarray:
 def shape_row(mesh, generation: np.ndarray | None = None) -> dict:
     """Extremes of the shape measures over all elements and, given the
     generations, over the refined ones (generation >= 1)."""
-    from elastoplast.refinement import shape_quality
+    from elastoplast.mesh.refinement import shape_quality
 
     q, a = shape_quality(mesh), facet_angles(mesh)
     row = {"n_el": mesh.n_elements, "q_min": float(q.min()), "q_max": float(q.max()),
@@ -218,7 +218,7 @@ def shape_row(mesh, generation: np.ndarray | None = None) -> dict:
 
 
 def run_quality(kinds: list[str], rounds: int, tmp: Path, quick: bool) -> list[dict]:
-    from elastoplast.refinement import refine
+    from elastoplast.mesh.refinement import refine
 
     args = {"rectangle": [40, 20], "crossed": [20, 10], "punch_gmsh": None, "box": [8, 8, 4],
             "quarter": [6, 6, 6], "gmsh_box": 0.5 if quick else 0.25}
@@ -295,7 +295,7 @@ def report(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 
     parser = record_parser(__doc__, quick="meshes of a few thousand elements, 6 rounds")
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)

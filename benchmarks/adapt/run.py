@@ -5,7 +5,7 @@
 Two problems, each from a coarse graded mesh of its problem file:
 
 * ``cylinder_2d`` (problems/cylinder_2d.toml, 20 x 10 divisions, 400 triangles):
-  the adaptive loop (``elastoplast.adapt.adapt``) to rtol = 1e-3 with θ = 0.3, 0.5
+  the adaptive loop (``elastoplast.adapt.loop.adapt``) to rtol = 1e-3 with θ = 0.3, 0.5
   and 0.7; uniform refinement (``uniform``: every triangle into four) from the
   same mesh up to the finest mesh the lower bound accepts (25,600 triangles; the
   next, 102,400, is above its limit); θ = 0.5 again without warm starts (Newton
@@ -43,9 +43,9 @@ from pathlib import Path
 import numpy as np
 
 import elastoplast as ep
-from elastoplast.adapt import AdaptOptions, Step, adapt, elements_at_gap, fitted_rate, plot_gap_curves, plot_indicator, uniform
-from elastoplast.problem import read_toml
-from elastoplast.provenance import run_record
+from elastoplast.adapt.loop import AdaptOptions, Step, adapt, elements_at_gap, fitted_rate, plot_gap_curves, plot_indicator, uniform
+from elastoplast.problem.definition import read_toml
+from elastoplast.io.provenance import run_record
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]

@@ -22,13 +22,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import elastoplast as ep
-import elastoplast.adapt as ad
-from elastoplast.bounds import conservative_discretization
-from elastoplast.equilibrium import solve_lower_bound
-from elastoplast.newton import NewtonOptions, solve_newton
-from elastoplast.problem import read_toml
-from elastoplast.provenance import run_record
-from elastoplast.refinement import prolong_p1
+from elastoplast.adapt.loop import AdaptOptions, adapt, refine
+from elastoplast.bounds.upper import conservative_discretization
+from elastoplast.bounds.lower import solve_lower_bound
+from elastoplast.solvers.newton import NewtonOptions, solve_newton
+from elastoplast.problem.definition import read_toml
+from elastoplast.io.provenance import run_record
+from elastoplast.mesh.refinement import prolong_p1
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -51,19 +51,19 @@ def measure(mode: str) -> dict:
     data["mesh"]["divisions"] = SETTINGS[mode]["divisions"]
     problem = ep.problem_from_dict(data)
     states = {}
-    refine = ad.refine
+    refine = refine
 
     def keep_state(mesh, marked, state=None, **kw):  # the loop's own refinement, its states kept
         new, st, parent = refine(mesh, marked, state, **kw)
         states[id(new)] = st
         return new, st, parent
 
-    ad.refine = keep_state
+    refine = keep_state
     try:
-        run = ad.adapt(problem, ad.AdaptOptions(rtol=1e-6, bracket="never", max_elements=SETTINGS[mode]["max_elements"]))
+        run = adapt(problem, AdaptOptions(rtol=1e-6, bracket="never", max_elements=SETTINGS[mode]["max_elements"]))
     finally:
-        ad.refine = refine
-    opts = NewtonOptions(tol=ad.AdaptOptions().tol)
+        refine = refine
+    opts = NewtonOptions(tol=AdaptOptions().tol)
     rows = []
     previous = None
     for mesh in run.meshes:

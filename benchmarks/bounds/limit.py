@@ -88,8 +88,8 @@ def contact_area(disc) -> float:
 
 
 def run_one(n: int, grading: float, pattern: str, what: str) -> dict:
-    from elastoplast.equilibrium import static_limit_load
-    from elastoplast.limit import LimitOptions, kinematic_limit_load
+    from elastoplast.bounds.lower import static_limit_load
+    from elastoplast.bounds.limit import LimitOptions, kinematic_limit_load
 
     disc = quarter_punch(n) if pattern == "3d" else half_punch(n, grading, pattern)
     out = {"n_elements": int(disc.n_elements)}
@@ -109,7 +109,7 @@ def run_one(n: int, grading: float, pattern: str, what: str) -> dict:
 
 
 def child(n: int, grading: float, pattern: str, what: str) -> dict:
-    from elastoplast.provenance import run_child
+    from elastoplast.io.provenance import run_child
 
     return run_child(__file__, [n, grading, pattern, what], cwd=ROOT)
 
@@ -176,7 +176,7 @@ def report(results: dict) -> str:
 
 
 def main(argv=None) -> None:
-    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 
     ap = record_parser(__doc__, quick="crossed graded meshes n = 2, 4 and the 3D quarter at n = 2")
     ap.add_argument("--child", help=argparse.SUPPRESS)

@@ -37,7 +37,7 @@ QUICK = {"cylinder_2d": [(24, 12), (40, 20)], "sphere_quarter_3d": [(3, 3, 3)]}
 def _disc(problem: str, divisions):
     import elastoplast as ep
 
-    data = ep.problem.read_toml(PROBLEMS / f"{problem}.toml")
+    data = ep.read_toml(PROBLEMS / f"{problem}.toml")
     data["mesh"]["divisions"] = list(divisions)
     return ep.discretize(ep.problem_from_dict(copy.deepcopy(data), base_dir=PROBLEMS))
 
@@ -45,7 +45,7 @@ def _disc(problem: str, divisions):
 def run_one(problem: str, divisions, what: str) -> dict:
     """One solve in this process: ``what`` is 'conic' or 'lower-<linear solver>'."""
     import elastoplast as ep
-    from elastoplast.equilibrium import LowerBoundOptions, solve_lower_bound
+    from elastoplast.bounds.lower import LowerBoundOptions, solve_lower_bound
 
     disc = _disc(problem, divisions)
     out = {"n_elements": int(disc.n_elements)}
@@ -64,7 +64,7 @@ def run_one(problem: str, divisions, what: str) -> dict:
 
 
 def child(problem: str, divisions, what: str) -> dict:
-    from elastoplast.provenance import run_child
+    from elastoplast.io.provenance import run_child
 
     return run_child(__file__, [problem, list(divisions), what], cwd=ROOT)
 
@@ -108,7 +108,7 @@ def report(results: dict) -> str:
 
 
 def main(argv=None) -> None:
-    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 
     ap = record_parser(__doc__, quick="the cylinder at 576 and 1,600 triangles, the 3D quarter at 3 x 3 x 3")
     ap.add_argument("--child", help=argparse.SUPPRESS)

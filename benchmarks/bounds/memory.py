@@ -4,7 +4,7 @@
 
 The `bounds` command runs three equilibrium-element programs in one process: the
 lower bound at F and the U bracket's two at F - delta and F + delta'
-(``elastoplast.bounds.u_bracket_of``); the adaptive loop runs many. This measures,
+(``elastoplast.bounds.upper.u_bracket_of``); the adaptive loop runs many. This measures,
 on the 3D quarter sphere (problems/sphere_quarter_3d.toml, divisions n x n x n, SCS)
 and the 2D cylinder (problems/cylinder_2d.toml, Clarabel), the process's peak RSS
 after the P1 solve, after the lower bound at F and after the bracket, and the
@@ -40,10 +40,10 @@ def _current_gb() -> float:
 def measure_case(name: str, divisions: list[int]) -> dict:
     """One case, in this process: P1 solve, lower bound at F, U bracket."""
     import elastoplast as ep
-    from elastoplast.bounds import best_upper_bound, combine, u_bracket_of
-    from elastoplast.equilibrium import LowerBoundOptions, lower_bound_bytes, lower_bound_solver, solve_lower_bound
+    from elastoplast.bounds.upper import best_upper_bound, combine, u_bracket_of
+    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_bytes, lower_bound_solver, solve_lower_bound
 
-    data = ep.problem.read_toml(ROOT / "problems" / f"{name}.toml")
+    data = ep.read_toml(ROOT / "problems" / f"{name}.toml")
     data["mesh"]["divisions"] = divisions
     disc = ep.discretize(ep.problem_from_dict(data, base_dir=ROOT / "problems"))
     out = {"problem": name, "divisions": divisions, "elements": disc.n_elements,
@@ -84,7 +84,7 @@ def render(res: dict) -> str:
 
 
 def main(argv=None) -> None:
-    from elastoplast.provenance import record_dir, record_parser, rewrite_report, run_child, write_record
+    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, run_child, write_record
 
     ap = record_parser(__doc__, quick="the 3D quarter at 384 tetrahedra and the 2D cylinder at 400 triangles")
     ap.add_argument("--child", help=argparse.SUPPRESS)

@@ -16,9 +16,9 @@ Families (each a sequence of meshes of one problem):
 Per mesh, two processes (so that each peak memory is its own, ``ru_maxrss``):
 
 * ``bounds``: the (S) conic solve, timed and its peak memory read at once, then
-  :func:`elastoplast.bounds.certified_bounds` with that solution: the energy bracket,
+  :func:`elastoplast.bounds.upper.certified_bounds` with that solution: the energy bracket,
   the stress error bound and (up to :data:`BRACKET_MAX_ELEMENTS`) the U bracket;
-* ``lower``: :func:`elastoplast.equilibrium.solve_lower_bound` alone, timed, with its
+* ``lower``: :func:`elastoplast.bounds.lower.solve_lower_bound` alone, timed, with its
   peak memory.
 
 Across the meshes of a family: every lower bound against every upper bound, each U
@@ -44,7 +44,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -100,7 +100,7 @@ def build(family: str, size, mesh_file: str | None = None):
     import elastoplast as ep
 
     spec = FAMILIES[family]
-    data = copy.deepcopy(ep.problem.read_toml(PROBLEMS / spec["problem"]))
+    data = copy.deepcopy(ep.read_toml(PROBLEMS / spec["problem"]))
     if spec["mesh"] == "gmsh":
         data["mesh"] = {"file": str(mesh_file)}
     else:
@@ -146,8 +146,8 @@ def contact_extent(disc, sol=None) -> dict:
     ``active``: the largest distance of an active contact node from the centre.
     The continuum problem of a mesh is that of its Γ0; the problems of two meshes
     have the same solution when its contact set lies inside both Γ0."""
-    from elastoplast.bounds import contact_facets
-    from elastoplast.equilibrium import facet_measure
+    from elastoplast.bounds.upper import contact_facets
+    from elastoplast.bounds.lower import facet_measure
 
     mesh, d = disc.mesh, disc.dim
     facets = contact_facets(disc)
@@ -179,7 +179,7 @@ def contact_extent(disc, sol=None) -> dict:
 def run_bounds(family: str, size, mesh_file: str | None) -> dict:
     """The conic solve (timed, its own peak memory) and the certified bounds."""
     import elastoplast as ep
-    from elastoplast.bounds import certified_bounds
+    from elastoplast.bounds.upper import certified_bounds
 
     disc = build(family, size, mesh_file)
     base = peak_mb()
@@ -201,7 +201,7 @@ def run_bounds(family: str, size, mesh_file: str | None) -> dict:
 
 def run_lower(family: str, size, mesh_file: str | None) -> dict:
     """The lower-bound program alone (timed, its own peak memory)."""
-    from elastoplast.equilibrium import solve_lower_bound
+    from elastoplast.bounds.lower import solve_lower_bound
 
     disc = build(family, size, mesh_file)
     base = peak_mb()
@@ -254,10 +254,10 @@ def u_check(rows: list[dict]) -> dict:
 
 def rates(rows: list[dict]) -> dict:
     """``gap_rel ~ elements^-p``: p by least squares over all meshes and over the last
-    three (:func:`elastoplast.adapt.fitted_rate`), and per step; ``p_h = d p`` is the
+    three (:func:`elastoplast.adapt.loop.fitted_rate`), and per step; ``p_h = d p`` is the
     exponent in the mesh size h ~ elements^(-1/d); ``factor`` the gap's drop per step and
     ``per_halving`` the drop per halving of h that each step's exponent implies."""
-    from elastoplast.adapt import fitted_rate
+    from elastoplast.adapt.loop import fitted_rate
 
     steps = [SimpleNamespace(n_elements=r["elements"], gap_rel=r["energy_gap_rel"]) for r in rows]
     n = np.array([r["elements"] for r in rows], dtype=float)
@@ -480,7 +480,7 @@ def main(argv=None) -> None:
     if args.report:
         res = rewrite_report(out, TITLE, render)
     else:
-        from elastoplast.output import strict
+        from elastoplast.io.output import strict
 
         res = write_record(out, strict(run_all("quick" if args.quick else "full")), TITLE, render)
     plots(res, out)

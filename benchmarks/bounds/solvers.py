@@ -3,7 +3,7 @@
     python benchmarks/bounds/solvers.py [--quick] [--out DIR] [--report]
 
 The certified lower bound -J <= Pi* comes from the conic program of
-``elastoplast.equilibrium.lower_bound_program``; whatever solves it, the answer goes
+``elastoplast.bounds.lower.lower_bound_program``; whatever solves it, the answer goes
 through the same ``repair_static`` + ``certify_static`` + exact ``dual_energy``, so
 the solver changes only the tightness of the bound and the time. Measured here, each
 run in its own process (wall clock of the whole call, peak RSS of that process):
@@ -68,7 +68,7 @@ QUICK = [
 def _disc(problem: str, divisions, material: dict):
     import elastoplast as ep
 
-    data = ep.problem.read_toml(PROBLEMS / f"{problem}.toml")
+    data = ep.read_toml(PROBLEMS / f"{problem}.toml")
     data["mesh"]["divisions"] = list(divisions)
     data["material"].update(material)
     return ep.discretize(ep.problem_from_dict(copy.deepcopy(data), base_dir=PROBLEMS))
@@ -79,23 +79,24 @@ def _clarabel_variant(disc, settings: dict) -> dict:
     import clarabel
     import numpy as np
 
-    from elastoplast import equilibrium as eq
-    from elastoplast.conic import ConicOptions, clarabel_settings
+    from elastoplast.bounds.lower import (LowerBoundOptions, _kkt_solver, _repaired_field, _setup, certify_static,
+        dual_energy, lower_bound_program, mass_matrix, solve_lower_bound, static_limit_load)
+    from elastoplast.solvers.conic import ConicOptions, clarabel_settings
 
     settings = dict(settings)
-    options = eq.LowerBoundOptions(max_elements=10**8, ip_tol=settings.pop("ip_tol", 1e-9))
-    s = eq._setup(disc, options)
+    options = LowerBoundOptions(max_elements=10**8, ip_tol=settings.pop("ip_tol", 1e-9))
+    s = _setup(disc, options)
     q_nd = s.psi.q / (s.units.displacement * s.units.length ** (disc.dim - 1))
-    prog = eq.lower_bound_program(s.nd, s.topo, s.grads, q_nd)
-    st = clarabel_settings(ConicOptions(ip_tol=options.ip_tol), eq._kkt_solver(disc, options))
+    prog = lower_bound_program(s.nd, s.topo, s.grads, q_nd)
+    st = clarabel_settings(ConicOptions(ip_tol=options.ip_tol), _kkt_solver(disc, options))
     for k, v in settings.items():
         setattr(st, k, v)
     t0 = time.perf_counter()
     res = clarabel.DefaultSolver(prog.P, prog.q, prog.A, prog.b, prog.cones, st).solve()
     t_solve = time.perf_counter() - t0
-    field, resid, _ = eq._repaired_field(disc, s, prog, np.asarray(res.x))
-    cert = eq.certify_static(disc, field, options.tol)
-    return dict(lower=-eq.dual_energy(disc, field, s.psi), certified=bool(cert.passed and s.psi.rigorous),
+    field, resid, _ = _repaired_field(disc, s, prog, np.asarray(res.x))
+    cert = certify_static(disc, field, options.tol)
+    return dict(lower=-dual_energy(disc, field, s.psi), certified=bool(cert.passed and s.psi.rigorous),
                 certificate_worst=cert.worst, iterations=int(res.iterations), status=str(res.status).split(".")[-1],
                 solve_s=t_solve, repair_residual=resid)
 
@@ -105,17 +106,17 @@ def _schur(disc) -> dict:
     import numpy as np
     import scipy.sparse as sp
 
-    from elastoplast import equilibrium as eq
-    from elastoplast.uzawa import FACTORIZATIONS
+    from elastoplast.bounds.lower import (LowerBoundOptions, _kkt_solver, _repaired_field, _setup, certify_static, dual_energy, lower_bound_program, mass_matrix, solve_lower_bound, static_limit_load)
+    from elastoplast.solvers.uzawa import FACTORIZATIONS
 
-    s = eq._setup(disc, eq.LowerBoundOptions(max_elements=10**8))
-    prog = eq.lower_bound_program(s.nd, s.topo, s.grads, s.psi.q)
+    s = _setup(disc, LowerBoundOptions(max_elements=10**8))
+    prog = lower_bound_program(s.nd, s.topo, s.grads, s.psi.q)
     d, n = disc.dim, disc.n_elements
     lam = prog.cols["lam"]
     A = prog.A[: prog.n_eq].tocsc()
     A = sp.hstack([A[:, prog.cols["tau"]], A[:, lam]]).tocsr()
     C = s.nd.material.compliance(d)
-    K = np.kron(eq.mass_matrix(d), C) + np.kron(np.eye(d + 1) / (d + 1), C)  # P + rho D, rho = 1, D lumped
+    K = np.kron(mass_matrix(d), C) + np.kron(np.eye(d + 1) / (d + 1), C)  # P + rho D, rho = 1, D lumped
     Kinv = sp.block_diag([sp.kron(sp.eye(n), sp.csr_matrix(np.linalg.inv(K))), sp.eye(lam.stop - lam.start)])
     norms = np.sqrt(np.asarray(A.multiply(A).sum(axis=1)).ravel())
     A = sp.diags(1 / norms) @ A
@@ -131,7 +132,7 @@ def _schur(disc) -> dict:
 
 def run_one(problem: str, divisions, material: dict, method: str) -> dict:
     """One measurement in this process."""
-    from elastoplast import equilibrium as eq
+    from elastoplast.bounds.lower import (LowerBoundOptions, _kkt_solver, _repaired_field, _setup, certify_static, dual_energy, lower_bound_program, mass_matrix, solve_lower_bound, static_limit_load)
 
     disc = _disc(problem, divisions, material)
     out = {"n_elements": int(disc.n_elements)}
@@ -139,15 +140,15 @@ def run_one(problem: str, divisions, material: dict, method: str) -> dict:
     if method == "schur":
         out.update(_schur(disc))
     elif method.startswith("limit:"):
-        lim = eq.static_limit_load(disc, eq.LowerBoundOptions(solver=method.split(":")[1], max_elements=10**8))
+        lim = static_limit_load(disc, LowerBoundOptions(solver=method.split(":")[1], max_elements=10**8))
         out.update(F_lower=lim.F_lower, certified=lim.certified, iterations=lim.iterations, status=lim.status.value,
                    solve_s=lim.timings["solve"], message=lim.message)
     elif method.startswith("clarabel:"):
         out.update(_clarabel_variant(disc, json.loads(method.split(":", 1)[1])))
     else:
         solver, _, eps = method.partition(":")
-        options = eq.LowerBoundOptions(solver=solver, max_elements=10**8, **({"scs_eps": float(eps)} if eps else {}))
-        lb = eq.solve_lower_bound(disc, options)
+        options = LowerBoundOptions(solver=solver, max_elements=10**8, **({"scs_eps": float(eps)} if eps else {}))
+        lb = solve_lower_bound(disc, options)
         out.update(lower=-lb.J, certified=lb.certified, certificate_worst=lb.certificate.worst,
                    iterations=lb.iterations, status=lb.status.value, solve_s=lb.timings["solve"],
                    repair_s=lb.timings["repair"], repair_residual=lb.repair_residual, message=lb.message)
@@ -157,7 +158,7 @@ def run_one(problem: str, divisions, material: dict, method: str) -> dict:
 
 
 def child(problem: str, divisions, material: dict, method: str) -> dict:
-    from elastoplast.provenance import run_child
+    from elastoplast.io.provenance import run_child
 
     return run_child(__file__, [problem, list(divisions), material, method], cwd=ROOT)
 
@@ -245,7 +246,7 @@ def render(results: dict) -> str:
 
 
 def main(argv=None) -> None:
-    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 
     ap = record_parser(__doc__, quick="the 3D quarter at 162 tetrahedra and the 2D cylinder at 576 triangles")
     ap.add_argument("--child", help=__import__("argparse").SUPPRESS)

@@ -44,7 +44,7 @@ QUICK_U = [(20, 10)]
 def disc_of(problem: str, divisions):
     import elastoplast as ep
 
-    data = ep.problem.read_toml(PROBLEMS / f"{problem}.toml")
+    data = ep.read_toml(PROBLEMS / f"{problem}.toml")
     data["mesh"]["divisions"] = list(divisions)
     return ep.discretize(ep.problem_from_dict(copy.deepcopy(data), base_dir=PROBLEMS))
 
@@ -57,22 +57,23 @@ def timed(fn, *args, **kw):
 
 def energy_case(problem: str, divisions) -> dict:
     import elastoplast as ep
-    from elastoplast import bounds as bd
-    from elastoplast.equilibrium import solve_lower_bound
+    from elastoplast.bounds.upper import (bounds_at, choose_delta, combine, conservative_discretization,
+        displacement_slope, energy_bounds, u_bracket, upper_bound)
+    from elastoplast.bounds.lower import solve_lower_bound
 
     disc = disc_of(problem, divisions)
     sol, t_conic = timed(ep.solve, disc, "conic")
     uppers = {}
     for c in ("shift", "lift", "best"):
-        ub, t = timed(bd.upper_bound, disc, sol, c)
+        ub, t = timed(upper_bound, disc, sol, c)
         uppers[c] = {"Pi": ub.Pi, "shift": ub.shift, "lift": ub.lift, "certified": ub.certified, "time_s": t}
-    cons_sol, t_cons = timed(ep.solve, bd.conservative_discretization(disc), "conic")
-    cons = bd.upper_bound(disc, cons_sol, "shift")
+    cons_sol, t_cons = timed(ep.solve, conservative_discretization(disc), "conic")
+    cons = upper_bound(disc, cons_sol, "shift")
     uppers["conservative"] = {"Pi": cons.Pi, "shift": cons.shift, "lift": cons.lift, "certified": cons.certified,
                               "time_s": t_cons}
     lower, t_lower = timed(solve_lower_bound, disc)
-    best = min((ub for ub in (bd.upper_bound(disc, sol, "best"), cons)), key=lambda u: u.Pi)
-    b = bd.combine(best, lower)
+    best = min((ub for ub in (upper_bound(disc, sol, "best"), cons)), key=lambda u: u.Pi)
+    b = combine(best, lower)
     hi, lo = b.energy_upper, b.energy_lower
     return {
         "problem": problem, "divisions": list(divisions), "n_elements": int(disc.n_elements),
@@ -87,13 +88,13 @@ def energy_case(problem: str, divisions) -> dict:
 
 
 def u_case(divisions, U_ref: dict) -> dict:
-    from elastoplast import bounds as bd
+    from elastoplast.bounds.upper import (bounds_at, choose_delta, combine, conservative_discretization, displacement_slope, energy_bounds, u_bracket, upper_bound)
 
     disc = disc_of("cylinder_2d", divisions)
-    (b, t_b) = timed(bd.energy_bounds, disc)
-    slope, t_s = timed(bd.displacement_slope, disc)
+    (b, t_b) = timed(energy_bounds, disc)
+    slope, t_s = timed(displacement_slope, disc)
     gap = b.energy_upper - b.energy_lower
-    delta = bd.choose_delta(disc.force, gap, slope)
+    delta = choose_delta(disc.force, gap, slope)
     out = {"divisions": list(divisions), "n_elements": int(disc.n_elements), "gap_rel": b.energy_gap_rel,
            "dU_dF": slope, "delta_over_F": delta / disc.force, "predicted_width": 2 * np.sqrt(2 * gap * slope),
            "brackets": {}}
@@ -101,7 +102,7 @@ def u_case(divisions, U_ref: dict) -> dict:
     t0 = time.perf_counter()
     for f in factors:
         d = min(f * delta, 0.9 * disc.force)
-        lo, hi = bd.u_bracket(disc, d, bd.bounds_at(disc))
+        lo, hi = u_bracket(disc, d, bounds_at(disc))
         out["brackets"][f"{f:g}"] = {"delta_over_F": d / disc.force, "U_lower": lo, "U_upper": hi, "width": hi - lo,
                                      "contains": {k: bool(lo <= v <= hi) for k, v in U_ref.items()}}
     out["time_s"] = {"bounds_at_F": t_b, "slope": t_s, "brackets": time.perf_counter() - t0}
@@ -175,7 +176,7 @@ def measure(mode: str, out: Path) -> dict:
 
 
 def main(argv=None) -> int:
-    from elastoplast.provenance import run_record
+    from elastoplast.io.provenance import run_record
 
     return run_record(__doc__, "the cylinder at 400 and 1,600 triangles, the 3D quarter at 3 x 3 x 3", HERE, TITLE,
                       "upper-bound study", measure, report, argv=argv, study=STUDY)

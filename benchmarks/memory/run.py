@@ -1,5 +1,5 @@
 """Memory of building a mesh and its Discretization: measured peak RSS against
-``elastoplast.checks.discretization_bytes``, and meshio's peak against
+``elastoplast.mesh.checks.discretization_bytes``, and meshio's peak against
 ``mesh_read_bytes``.
 
     python benchmarks/memory/run.py             # full run: results.json, REPORT.md in this folder
@@ -68,7 +68,7 @@ def peak_rss() -> int:
 
 def worker_build(dim: int, divisions: list[int]) -> dict:
     import elastoplast as ep
-    from elastoplast.checks import discretization_bytes, structured_counts
+    from elastoplast.mesh.checks import discretization_bytes, structured_counts
 
     before = reset_peak()
     with warnings.catch_warnings():
@@ -99,7 +99,7 @@ def worker_read(path: str, traced: bool) -> dict:
 
 
 def measure_read(path: Path) -> dict:
-    from elastoplast.checks import mesh_read_bytes
+    from elastoplast.mesh.checks import mesh_read_bytes
 
     size = path.stat().st_size
     rss = run_worker("read", str(path), "rss")["measured_bytes"]
@@ -159,7 +159,7 @@ def markdown(results: dict) -> str:
 
 
 def main() -> None:
-    from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 
     parser = record_parser(__doc__)
     parser.add_argument("--worker", nargs="+", help=argparse.SUPPRESS)

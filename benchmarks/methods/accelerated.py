@@ -26,10 +26,10 @@ import time
 from pathlib import Path
 
 import elastoplast as ep
-from elastoplast.accelerated import FastOptions, solve_alg2, solve_uzawa_fast
-from elastoplast.problem import problem_from_dict, read_toml
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
-from elastoplast.uzawa import UzawaOptions, solve_uzawa
+from elastoplast.solvers.accelerated import FastOptions, solve_alg2, solve_uzawa_fast
+from elastoplast.problem.definition import problem_from_dict, read_toml
+from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.solvers.uzawa import UzawaOptions, solve_uzawa
 
 HERE = Path(__file__).resolve().parent
 PROBLEMS = HERE.parents[1] / "problems"

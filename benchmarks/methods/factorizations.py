@@ -22,9 +22,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 import elastoplast as ep
-from elastoplast.discretize import _rigid_motions, nondimensionalize
-from elastoplast.problem import problem_from_dict, read_toml
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.fem.discretize import _rigid_motions, nondimensionalize
+from elastoplast.problem.definition import problem_from_dict, read_toml
+from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 
 HERE = Path(__file__).resolve().parent
 TITLE = "Linear solvers for Newton's systems: one elastic stiffness K of the 3D sphere"
@@ -103,10 +103,10 @@ def main(argv=None) -> int:
 
     import pyamg
 
-    from elastoplast.linalg import one_blas_thread
+    from elastoplast.linalg.amg import one_blas_thread
 
     modes = _rigid_motions(disc.mesh.points)[disc.free]
-    # the settings of elastoplast.linalg.AMG: pyamg's default coarse solver (a pseudo-inverse)
+    # the settings of elastoplast.linalg.amg.AMG: pyamg's default coarse solver (a pseudo-inverse)
     # recomputes an SVD at every cycle, which made this row 8x slower than the package's path
     ml, t = timed(lambda: pyamg.smoothed_aggregation_solver(K, B=modes, max_coarse=500, coarse_solver="splu",
                                                             improve_candidates=None))

@@ -32,10 +32,10 @@ import numpy as np
 import scipy.sparse as sp
 
 import elastoplast as ep
-from elastoplast.certificate import energy_norm_sq
-from elastoplast.discretize import nondimensionalize
-from elastoplast.problem import problem_from_dict, read_toml
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.certificate.kkt import energy_norm_sq
+from elastoplast.fem.discretize import nondimensionalize
+from elastoplast.problem.definition import problem_from_dict, read_toml
+from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 
 HERE = Path(__file__).resolve().parent
 PROBLEMS = HERE.parents[1] / "problems"

@@ -56,7 +56,7 @@ def measure(mode: str, out: Path) -> dict:
 
 
 def main(argv=None) -> int:
-    from elastoplast.provenance import run_record
+    from elastoplast.io.provenance import run_record
 
     return run_record(__doc__, "m = 40, 80", HERE, TITLE, "2D crossover study", measure, render, argv=argv,
                       study=STUDY)

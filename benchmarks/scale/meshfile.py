@@ -30,7 +30,7 @@ TITLE = "A mesh file through the generator's path"
 
 
 def problem_dict(n: int, mesh_file: Path | None) -> dict:
-    from elastoplast.problem import read_toml
+    from elastoplast.problem.definition import read_toml
 
     d = read_toml(ROOT / "elastoplast" / "data" / "default.toml")
     d["mesh"]["divisions"] = [2 * n, 2 * n, n]
@@ -44,7 +44,7 @@ def write_gmsh(n: int, path: Path) -> None:
     """The generator's mesh as gmsh 2.2 with named physical groups."""
     import meshio
 
-    from elastoplast.problem import problem_from_dict
+    from elastoplast.problem.definition import problem_from_dict
 
     mesh = problem_from_dict(problem_dict(n, None)).mesh
     names = sorted(mesh.groups)
@@ -59,7 +59,7 @@ def write_gmsh(n: int, path: Path) -> None:
 
 def measure(n: int, mesh_file: str) -> dict:
     import elastoplast as ep
-    from elastoplast.problem import problem_from_dict
+    from elastoplast.problem.definition import problem_from_dict
 
     t0 = time.perf_counter()
     prob = problem_from_dict(problem_dict(n, Path(mesh_file) if mesh_file != "-" else None))
@@ -84,7 +84,7 @@ def render(res: dict) -> str:
 
 
 def main(argv=None) -> None:
-    from elastoplast.provenance import record_dir, record_parser, rewrite_report, run_child, write_record
+    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, run_child, write_record
 
     ap = record_parser(__doc__, quick="12k tetrahedra (n = 8)")
     ap.add_argument("--measure", help=argparse.SUPPRESS)

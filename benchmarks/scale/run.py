@@ -60,7 +60,7 @@ CONIC_MEMORY_LIMIT_GB = 6.0
 
 def discretization(n: int, dim: int = 3):
     import elastoplast as ep
-    from elastoplast.problem import problem_from_dict, read_toml
+    from elastoplast.problem.definition import problem_from_dict, read_toml
 
     if dim == 3:
         d = read_toml(ROOT / "elastoplast" / "data" / "default.toml")
@@ -74,19 +74,20 @@ def discretization(n: int, dim: int = 3):
 def elastic_amg(disc) -> dict:
     """One elastic solve K u = f (f: the force spread evenly over the contact
     nodes): block assembly, AMG set-up, CG to relative residual 1e-10."""
-    from elastoplast import linalg
-    from elastoplast.discretize import nondimensionalize
+    from elastoplast.linalg.amg import (AMG, BorderedSystem, assemble, block_layout, bsr, constrain, near_null_space,
+        one_blas_thread, pcg)
+    from elastoplast.fem.discretize import nondimensionalize
 
-    with linalg.one_blas_thread():
+    with one_blas_thread():
         nd, units = nondimensionalize(disc)
-        lay = linalg.block_layout(nd, units.length)
-        A = linalg.bsr(lay, linalg.constrain(lay, linalg.assemble(lay, nd.material.stiffness(nd.dim)), ~lay.free))
+        lay = block_layout(nd, units.length)
+        A = bsr(lay, constrain(lay, assemble(lay, nd.material.stiffness(nd.dim)), ~lay.free))
         t1 = time.perf_counter()
-        amg = linalg.AMG(A, linalg.near_null_space(lay))
+        amg = AMG(A, near_null_space(lay))
         t2 = time.perf_counter()
         f = lay.embed(nd.N.T @ np.full(nd.n_contact, nd.force / nd.n_contact), nd.free)
-        system = linalg.BorderedSystem(A, amg)
-        x, its, ok = linalg.pcg(system.matvec, system.precondition, f, None, 1e-10, 2000)
+        system = BorderedSystem(A, amg)
+        x, its, ok = pcg(system.matvec, system.precondition, f, None, 1e-10, 2000)
         t3 = time.perf_counter()
     residual = float(np.linalg.norm(f - A @ x) / np.linalg.norm(f))
     return {"iterations": its, "converged": bool(ok), "relative_residual": residual, "amg_setup_s": t2 - t1,
@@ -100,7 +101,7 @@ def elastic_pardiso(disc) -> dict:
     import pypardiso
     import scipy.sparse as sp
 
-    from elastoplast.discretize import nondimensionalize
+    from elastoplast.fem.discretize import nondimensionalize
 
     nd, _ = nondimensionalize(disc)
     K = sp.triu(nd.weighted_gram(nd.material.stiffness(nd.dim)), format="csr")
@@ -120,7 +121,7 @@ def elastic_pardiso(disc) -> dict:
 def run_case(n: int, kind: str, dim: int, store: Path) -> dict:
     """One case in this process; returns its record (peak memory included)."""
     import elastoplast as ep
-    from elastoplast.certificate import energy_norm_sq
+    from elastoplast.certificate.kkt import energy_norm_sq
 
     t0 = time.perf_counter()
     disc = discretization(n, dim)
@@ -164,7 +165,7 @@ def run_case(n: int, kind: str, dim: int, store: Path) -> dict:
 
 def spawn(n: int, kind: str, dim: int, store: Path) -> dict:
     """One case in its own process (``--case``): its record, or the case and the error."""
-    from elastoplast.provenance import run_child
+    from elastoplast.io.provenance import run_child
 
     t0 = time.perf_counter()
     rec = run_child(__file__, [n, kind, dim, str(store)], flag="--case")
@@ -330,7 +331,7 @@ def plot(results: dict, out: Path) -> None:
 def measure(mode: str, out: Path) -> dict:
     """Every case of the plan, each in its own process; the record (stamped, with its
     report) is written after every case."""
-    from elastoplast.provenance import write_record
+    from elastoplast.io.provenance import write_record
 
     sizes = QUICK_SIZES if mode == "quick" else SIZES
     cases = plan(sizes, QUICK_CONIC_2D if mode == "quick" else CONIC_2D)
@@ -348,7 +349,7 @@ def measure(mode: str, out: Path) -> dict:
 
 
 def main(argv=None) -> int:
-    from elastoplast.provenance import run_record
+    from elastoplast.io.provenance import run_record
 
     ap = argparse.ArgumentParser(add_help=False)
     ap.add_argument("--case", help=argparse.SUPPRESS)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import elastoplast as ep
-from elastoplast.problem import read_toml
+from elastoplast.problem.definition import read_toml
 
 PROBLEMS = Path(__file__).resolve().parents[2] / "problems"
 

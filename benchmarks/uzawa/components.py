@@ -1,7 +1,7 @@
 """Measure the two building blocks of Uzawa's step (ii), to choose them.
 
 * the sparse factorisation of the metric G = sum |T| B^T B: for each backend of
-  ``elastoplast.uzawa.FACTORIZATIONS``, factor time, mean time of one solve,
+  ``elastoplast.solvers.uzawa.FACTORIZATIONS``, factor time, mean time of one solve,
   time of the n_contact-column solve Z = G^{-1} N^T, relative residual;
 * the contact QP ``min 1/2 lam S lam + g lam, lam >= 0``: the QPs of a real Uzawa
   run are recorded and solved again by the warm-started active-set method, the
@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from common import family
-import elastoplast.uzawa as uz
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
-from elastoplast.uzawa import FACTORIZATIONS, metric_matrix
+from elastoplast.solvers.uzawa import UzawaOptions, _nnls_fallback, solve_contact_qp, solve_uzawa
+from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.solvers.uzawa import FACTORIZATIONS, metric_matrix
 
 HERE = Path(__file__).resolve().parent
 TITLE = "Uzawa's step (ii): factorisation of G and the contact QP"
@@ -62,17 +62,17 @@ def record_qps(disc) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
     and forms no S. The run therefore factors G with SuperLU (always installed; the
     QPs do not depend on the factorisation beyond round-off)."""
     seen = []
-    exact = uz.solve_contact_qp
+    exact = solve_contact_qp
 
     def spy(S, g, lam0=None, max_iter=None):
         seen.append((S, g.copy(), None if lam0 is None else lam0.copy()))
         return exact(S, g, lam0, max_iter)
 
-    uz.solve_contact_qp = spy
+    solve_contact_qp = spy
     try:
-        uz.solve_uzawa(disc, uz.UzawaOptions(tol=1e-6, factorization="splu"))
+        solve_uzawa(disc, UzawaOptions(tol=1e-6, factorization="splu"))
     finally:
-        uz.solve_contact_qp = exact
+        solve_contact_qp = exact
     return seen
 
 
@@ -95,9 +95,9 @@ def qp_methods():
         return m.solve().x
 
     return {
-        "active-set (warm)": lambda S, g, lam0: uz.solve_contact_qp(S, g, lam0),
-        "active-set (cold)": lambda S, g, lam0: uz.solve_contact_qp(S, g),
-        "nnls (scipy)": lambda S, g, lam0: uz._nnls_fallback(S, g),
+        "active-set (warm)": lambda S, g, lam0: solve_contact_qp(S, g, lam0),
+        "active-set (cold)": lambda S, g, lam0: solve_contact_qp(S, g),
+        "nnls (scipy)": lambda S, g, lam0: _nnls_fallback(S, g),
         "osqp (warm, polished)": osqp_solver,
     }
 

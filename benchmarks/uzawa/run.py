@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -104,7 +104,7 @@ def errors(uz: dict, ref: dict) -> dict:
     """Uzawa's distance to the conic answer of the same case."""
     from common import family
 
-    from elastoplast.certificate import energy_norm_sq
+    from elastoplast.certificate.kkt import energy_norm_sq
 
     if "crashed" in (uz["status"], ref["status"]):
         return {}
@@ -145,7 +145,7 @@ def section_sizes(store: Path, sizes: dict) -> list[dict]:
 
 
 def section_rho(store: Path, cases) -> list[dict]:
-    from elastoplast.uzawa import rho_bound
+    from elastoplast.solvers.uzawa import rho_bound
     from common import family
 
     rows = []

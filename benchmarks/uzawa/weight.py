@@ -15,8 +15,8 @@ import json
 from pathlib import Path
 
 from common import family
-from elastoplast.provenance import record_dir, record_parser, rewrite_report, write_record
-from elastoplast.uzawa import UzawaOptions, solve_uzawa
+from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
+from elastoplast.solvers.uzawa import UzawaOptions, solve_uzawa
 
 HERE = Path(__file__).resolve().parent
 TITLE = "Uzawa: the weight w of V in the metric |eps(v)|^2 + w V^2"

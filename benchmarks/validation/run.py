@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from elastoplast.provenance import run_record
+from elastoplast.io.provenance import run_record
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))

@@ -21,9 +21,9 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 import elastoplast as ep
-from elastoplast.certificate import energy_norm_sq
-from elastoplast.material import von_mises
-from elastoplast.solution import Status, summary
+from elastoplast.certificate.kkt import energy_norm_sq
+from elastoplast.fem.material import von_mises
+from elastoplast.certificate.solution import Status, summary
 
 try:
     from . import references as ref
@@ -505,7 +505,7 @@ def limit_load(disc: ep.Discretization) -> dict[str, Any]:
     """
     import clarabel
 
-    from elastoplast.conic import deviatoric_basis
+    from elastoplast.solvers.conic import deviatoric_basis
 
     n, k, nc = disc.n_elements, disc.k, disc.n_contact
     sy = disc.material.yield_stress
@@ -559,7 +559,7 @@ def punch_study(nh: Sequence[int], *, L: float = 4.0, h_levels: Sequence[float] 
     lim_kuhn = limit_load(kuhn)
     # ep.solve refuses H = 0 on this locking mesh (checks.check_perfect_plasticity, citing
     # this very measurement); the conic solver is called below the registry to show why
-    from elastoplast.conic import solve_conic
+    from elastoplast.solvers.conic import solve_conic
 
     far = solve_conic(kuhn.with_force(3.0 * 2 * w * p_prandtl))
     generator_mesh = {"nh": n_g, "limit_program_status": lim_kuhn["status"],

@@ -1,0 +1,678 @@
+"""Guaranteed bounds on the continuous problem: the upper bound and the energy bracket (docs/bounds.md).
+
+Upper bound. Any ``(v, V)`` in the continuum set K (``v`` in H1 with its Dirichlet
+conditions, ``v_d + psi - V >= 0`` on all of Γ0) gives ``Pi* <= Pi(v, V) = ∫ W(ε(v)) -
+F V``, with the Hencky energy
+
+    W(ε) = sup_{(τ, η) in D} τ:ε - 1/2 Aτ:τ - η²/(2H) = 1/2 Cε:ε - 1/2 ‖(Cε, 0) - R(ε)‖²
+
+in the ``[.,.]`` metric (R the return mapping: the sup is attained at R(ε)). A P1
+displacement is conforming and has a constant strain per element, so ``∫ W(ε(v))``
+is exact element by element. Its non-penetration, though, holds at the nodes only:
+:func:`penetration_bound` bounds the gap from below on every contact facet, and
+``V`` is lowered by the largest penetration, which makes ``(v, V)`` admissible.
+
+Facet rule (docs/bounds.md). On a contact facet ``g = I_h g + (psi - I_h psi)``;
+``I_h g`` is at least the smallest nodal gap (round-off may leave that slightly
+negative: it is kept), and if ``Hess psi <= k I`` on the facet then
+``I_h psi - psi <= k r²/2`` with r the radius of the facet's smallest enclosing
+ball: ``psi - k|x - c|²/2`` is concave, so it lies above its interpolant, and
+``I_h |x - c|² - |x - c|² <= r²`` for c the ball's centre. Curvature bounds k:
+sphere and cylinder ``R² / (R² - r_x²)^{3/2}`` (r_x the facet's largest distance
+from the axis, the radial curvature, which exceeds the tangential one
+``1/sqrt(R² - r_x²)``), paraboloid ``1/R``, flat 0. For an ``expression`` obstacle
+nothing is known about its curvature: ψ is enclosed by interval arithmetic
+(:mod:`elastoplast.problem.intervals`, outward rounding) on pieces of each facet, and on each
+piece ``g >= min over the piece's corners of I_h(v_d - V) + inf_piece psi``;
+facets whose bound is negative are cut into more pieces (up to
+``EXPRESSION_PIECES``), which makes the bound first order in the piece size. If
+ψ cannot be enclosed the bound is reported as not certified, with the reason.
+
+Lower bound and the bracket: :mod:`elastoplast.bounds.lower` gives ``-J <= Pi*``;
+:func:`combine` forms the bracket, the stress error bound and the local gap terms.
+The U bracket (:func:`u_bracket`) uses the concavity of ``Pi*`` in F.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from elastoplast.certificate.kkt import energy_norm_sq, gaps
+from elastoplast.errors import InputError, expect
+from elastoplast.fem.discretize import Discretization
+from elastoplast.fem.material import Material, return_mapping
+
+#: most pieces per facet edge for an expression obstacle (1, 4, 16, ... up to this; 2D: that many
+#: pieces per facet, 3D: its square)
+EXPRESSION_PIECES = {2: 256, 3: 16}
+#: boxes enclosed per call (bounds the memory of the expression enclosure)
+BOXES_PER_CALL = 200_000
+
+
+# ----------------------------------------------------------------------------
+# the Hencky energy
+# ----------------------------------------------------------------------------
+
+
+def hencky_energy_density(material: Material, eps: np.ndarray) -> np.ndarray:
+    """``W(ε) = 1/2 Cε:ε - 1/2 ‖(Cε, 0) - R(ε)‖²`` per row of Mandel strains ``eps (n, k)``.
+
+    The squared distance is ``A(Cε - σ):(Cε - σ) + ξ²/H`` (ξ = 0 when H = 0); with the
+    closed form of R it equals ``(3 mu + H) Δκ²``.
+    """
+    dim = 2 if eps.shape[-1] == 4 else 3
+    sigma, xi, _ = return_mapping(material, eps)
+    Ceps = eps @ material.stiffness(dim)
+    r = Ceps - sigma
+    dist2 = np.einsum("ei,ij,ej->e", r, material.compliance(dim), r)
+    if material.hardening > 0:
+        dist2 = dist2 + xi**2 / material.hardening
+    return 0.5 * np.einsum("ei,ei->e", Ceps, eps) - 0.5 * dist2
+
+
+# ----------------------------------------------------------------------------
+# non-penetration between the nodes
+# ----------------------------------------------------------------------------
+
+
+def contact_facets(disc: Discretization) -> np.ndarray:
+    """The facets ``(n_cf, d)`` (node indices) of the ``boundary.contact`` groups: Γ0."""
+    return np.concatenate([disc.mesh.groups[name] for name in disc.problem.boundary.contact], axis=0)
+
+
+def enclosing_radius(X: np.ndarray) -> np.ndarray:
+    """Radius of the smallest ball containing each simplex ``X (n, m+1, m)`` for m = 1, 2:
+    half the length of a segment; for a triangle its circumradius ``abc / (4 area)``
+    if no angle is obtuse, else half its longest edge."""
+    if X.shape[1] == 2:
+        return 0.5 * np.linalg.norm(X[:, 1] - X[:, 0], axis=1)
+    e2 = np.stack([np.sum((X[:, (i + 1) % 3] - X[:, (i + 2) % 3]) ** 2, axis=1) for i in range(3)], axis=1)
+    longest = e2.max(axis=1)
+    obtuse = 2.0 * longest >= e2.sum(axis=1)  # a² >= b² + c² opposite the longest edge (right angles too)
+    u, v = X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]
+    area = 0.5 * np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+    circum = np.sqrt(e2.prod(axis=1)) / np.maximum(4.0 * area, np.finfo(float).tiny)
+    return np.where(obtuse, 0.5 * np.sqrt(longest), circum)
+
+
+def curvature_bound(disc: Discretization, X: np.ndarray) -> np.ndarray:
+    """``k >= lambda_max(Hess psi)`` on each facet with in-plane vertices ``X (n, d, d-1)``
+    (known shapes only; module docstring)."""
+    ob = disc.problem.obstacle
+    if ob.shape == "flat":
+        return np.zeros(X.shape[0])
+    if ob.shape == "paraboloid":
+        return np.full(X.shape[0], 1.0 / ob.radius)
+    if ob.shape in ("sphere", "cylinder"):
+        R = ob.radius
+        rx = np.linalg.norm(X - np.asarray(ob.center), axis=2).max(axis=1)
+        # Obstacle.psi refused any node at distance >= R, so rx < R on every facet
+        return R**2 / (R**2 - rx**2) ** 1.5
+    raise ValueError(f"no curvature bound for the {ob.shape!r} obstacle")
+
+
+@dataclass(frozen=True)
+class Penetration:
+    """Lower bounds of the gap ``v_d + psi - V`` on every contact facet.
+
+    ``facets (n_cf, d)`` are those of :func:`contact_facets`, ``facet_gap`` a lower
+    bound of the gap on each (negative: possible penetration), ``max_penetration =
+    max(0, -min facet_gap)``; ``certified`` says whether every facet bound is
+    proved, ``method`` how they were obtained.
+    """
+
+    max_penetration: float
+    facet_gap: np.ndarray
+    facets: np.ndarray
+    certified: bool
+    method: str
+
+    def __iter__(self):
+        """``max_penetration, facet_gap = penetration_bound(...)`` unpacks the two bounds."""
+        return iter((self.max_penetration, self.facet_gap))
+
+
+def _expression_gap(disc: Discretization, X: np.ndarray, base: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """Facet lower bounds ``min_pieces [min_corners I_h(v_d - V) + inf_piece psi]`` for an
+    expression obstacle; ``base (n_cf, d)`` are the nodal values ``v_d - V``."""
+    from elastoplast.problem.intervals import Unbounded, _pieces, enclose
+
+    d = disc.dim
+    ob = disc.problem.obstacle
+    size = np.abs(X.max(axis=1) - X.min(axis=1)).max(axis=1)
+    lower = np.full(X.shape[0], -np.inf)
+    todo = np.arange(X.shape[0])
+    m = 1
+    while todo.size:
+        bary = _pieces(d, m)  # (P, d corners, d vertices)
+        for chunk in np.array_split(todo, max(1, todo.size * bary.shape[0] // BOXES_PER_CALL)):
+            corners = np.einsum("pva,fac->fpvc", bary, X[chunk])
+            pad = (1e-12 * size[chunk] + np.finfo(float).tiny)[:, None, None]
+            lo, hi = corners.min(axis=2) - pad, corners.max(axis=2) + pad
+            try:
+                inf_psi, _ = enclose(ob.expression, d, lo.reshape(-1, d - 1), hi.reshape(-1, d - 1))
+            except Unbounded as exc:
+                return None, str(exc)
+            linear = np.einsum("pva,fa->fpv", bary, base[chunk]).min(axis=2)  # exact for linear I_h
+            lower[chunk] = np.maximum(lower[chunk], (linear + inf_psi.reshape(linear.shape)).min(axis=1))
+        m *= 4
+        if m > EXPRESSION_PIECES[d]:
+            break
+        todo = todo[lower[todo] < 0]
+    return lower, ""
+
+
+def penetration_bound(disc: Discretization, u: np.ndarray, U: float) -> Penetration:
+    """How far ``(u, U)`` may penetrate the obstacle between the nodes (module docstring).
+
+    ``u``: nodal displacements ``(n_nodes, d)`` or the free-dof vector.
+    """
+    u = _nodal(disc, u)
+    d = disc.dim
+    facets = contact_facets(disc)
+    X = disc.mesh.points[facets][:, :, :-1]
+    ob = disc.problem.obstacle
+    if ob.shape == "expression":
+        base = u[facets, d - 1] - U
+        lower, reason = _expression_gap(disc, X, base)
+        if lower is None:
+            g = gaps(disc, disc.free_displacement(u), U)
+            position = np.full(disc.mesh.n_nodes, -1)
+            position[disc.contact_nodes] = np.arange(disc.n_contact)
+            lower = g[position[facets]].min(axis=1)
+            certified, method = False, f"nodal gaps only (psi could not be enclosed: {reason})"
+        else:
+            certified, method = True, "interval enclosure of psi on pieces of each facet"
+    else:
+        psi = ob.psi(X.reshape(-1, d - 1), field="obstacle").reshape(-1, d)
+        nodal = u[facets, d - 1] + psi - U
+        k = curvature_bound(disc, X)
+        lower = nodal.min(axis=1) - 0.5 * np.maximum(k, 0.0) * enclosing_radius(X) ** 2
+        certified, method = True, f"smallest nodal gap minus k r^2/2 ({ob.shape})"
+    return Penetration(max_penetration=float(max(0.0, -lower.min(initial=0.0))), facet_gap=lower, facets=facets,
+                       certified=certified, method=method)
+
+
+def _nodal(disc: Discretization, u: np.ndarray) -> np.ndarray:
+    u = np.asarray(u, dtype=float)
+    if u.ndim == 1 and u.size == disc.n_free:
+        return disc.full_displacement(u)
+    return u.reshape(disc.mesh.n_nodes, disc.dim)
+
+
+# ----------------------------------------------------------------------------
+# the upper bound
+# ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class UpperBound:
+    """``Pi* <= Pi = ∫ W(ε(v)) - F V`` at an admissible ``(v, V)`` (user units).
+
+    ``U`` and ``penetration`` are the candidate's own rigid displacement and the
+    bound on how far it penetrates between the nodes; ``v`` is the candidate with
+    its contact nodes lifted by up to ``lift`` and ``V = U - shift`` (see
+    :func:`upper_bound`). ``element_energy`` is ``|T| W(ε_T(v))``, ``strain`` the
+    element strains of v, ``u`` its nodal values (at the mesh's ``points``);
+    ``stress_norm`` is ``sqrt([R(ε(v)), R(ε(v))])``, the energy norm of the
+    stresses v implies; ``facet_gap`` the lower bounds of the gap of ``(v, V)`` on
+    the contact facets (all ``>= 0``). ``certified`` only when every step is a
+    proof (``message`` says which was not).
+    """
+
+    Pi: float
+    V: float
+    U: float
+    penetration: float
+    shift: float
+    lift: float
+    element_energy: np.ndarray = field(repr=False)
+    strain: np.ndarray = field(repr=False)
+    u: np.ndarray = field(repr=False)
+    points: np.ndarray = field(repr=False)
+    stress_norm: float
+    facet_gap: np.ndarray = field(repr=False)
+    certified: bool
+    message: str
+
+
+#: shifts of V tried by :func:`upper_bound` (quantiles of the nodal lifts)
+N_SHIFTS = 17
+
+
+def node_lifts(disc: Discretization, pen: Penetration) -> np.ndarray:
+    """``p_i`` = the largest penetration bound over the contact facets at node i
+    (zero elsewhere): raising ``v_d`` at every node of a facet by at least its
+    penetration raises its gap bound to ``>= 0``, since on a facet both rules
+    (``min nodal gap - k r²/2`` and the piecewise enclosure) grow by the smallest
+    rise of its nodes."""
+    p = np.zeros(disc.mesh.n_nodes)
+    np.maximum.at(p, pen.facets.ravel(), np.repeat(np.maximum(-pen.facet_gap, 0.0), pen.facets.shape[1]))
+    return p
+
+
+def upper_bound(disc: Discretization, candidate, correction: str = "best") -> UpperBound:
+    """The upper bound of a P1 candidate: a :class:`~elastoplast.certificate.solution.Solution`
+    or a pair ``(u, U)`` (``u`` nodal ``(n_nodes, d)`` or on the free dofs).
+
+    The candidate is made admissible in one of two ways, or a mix: lower V by a
+    shift s (costs ``F s``) and lift ``v_d`` at each contact node by
+    ``max(0, p_i - s)`` (:func:`node_lifts`; costs about ``Σ λ_i max(0, p_i - s)``
+    to first order, much less than ``F max p`` when the largest penetrations sit
+    where the contact force is small, as at the edge of a contact zone on a graded
+    mesh). ``correction``: ``"shift"`` (s = max p, docs/bounds.md's rule),
+    ``"lift"`` (s = 0) or ``"best"`` (the smallest Pi over s in 0, the
+    quantiles of the lifts and max p). Whatever s, Pi is evaluated exactly at the
+    corrected ``(v, V)``, whose gap bounds are recomputed (any round-off
+    penetration left is taken off V): nothing but the candidate's displacements
+    enter, so any candidate gives a valid bound.
+    """
+    if correction not in ("best", "shift", "lift"):
+        from elastoplast.errors import InputError
+
+        raise InputError("correction", f"must be 'best', 'shift' or 'lift', got {correction!r}")
+    u, U = (candidate.u, candidate.U) if hasattr(candidate, "kkt") else candidate
+    u = _nodal(disc, u)
+    U = float(U)
+    m, d, F = disc.material, disc.dim, disc.force
+    pen = penetration_bound(disc, u, U)
+    p = node_lifts(disc, pen)
+    if correction == "shift":
+        shifts = np.array([pen.max_penetration])
+    elif correction == "lift":
+        shifts = np.zeros(1)
+    else:
+        shifts = np.unique(np.concatenate([[0.0], np.quantile(p[p > 0], np.linspace(0, 1, N_SHIFTS))])) \
+            if np.any(p > 0) else np.zeros(1)
+
+    def lifted(shift: float) -> tuple[np.ndarray, np.ndarray, float]:
+        v = u.copy()
+        v[:, d - 1] += np.maximum(p - shift, 0.0)
+        energy = disc.volumes * hencky_energy_density(m, disc.strain(disc.free_displacement(v)))
+        return v, energy, float(energy.sum() - F * (U - shift))
+
+    s = min(shifts, key=lambda t: lifted(t)[2])
+    v, energy, _ = lifted(s)
+    after = penetration_bound(disc, v, U - s)
+    V = U - s - after.max_penetration
+    eps = disc.strain(disc.free_displacement(v))
+    sigma, xi, _ = return_mapping(m, eps)
+    lift = float(np.maximum(p - s, 0.0).max(initial=0.0))
+    notes = [f"gap between nodes: {pen.method}", f"largest penetration {pen.max_penetration:.3e}",
+             f"V lowered by {U - V:.3e}, contact nodes lifted by up to {lift:.3e} ({correction})"]
+    finite = bool(np.all(np.isfinite(v)) and np.isfinite(V))
+    if not finite:
+        notes.append("the candidate is not finite")
+    return UpperBound(
+        Pi=float(energy.sum() - F * V),
+        V=float(V),
+        U=U,
+        penetration=pen.max_penetration,
+        shift=float(U - V),
+        lift=lift,
+        element_energy=energy,
+        strain=eps,
+        u=v,
+        points=disc.mesh.points,
+        stress_norm=float(np.sqrt(energy_norm_sq(disc, sigma, xi))),
+        facet_gap=after.facet_gap + ((U - s) - V),  # V as rounded
+        certified=bool(pen.certified and after.certified and finite),
+        message="; ".join(notes),
+    )
+
+
+# ----------------------------------------------------------------------------
+# the bracket
+# ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """``energy_lower = -J <= Pi* <= energy_upper = Pi`` and what follows from it.
+
+    ``energy_gap_rel = (upper - lower) / |upper|``; ``stress_error_bound =
+    sqrt(2 gap)`` bounds ``‖σ̂ - τ̂‖`` (τ̂ the lower bound's field) and
+    ``‖σ̂ - R(ε(v))‖`` in the energy norm, ``stress_error_bound_rel`` divides it by
+    ``sqrt([R(ε(v)), R(ε(v))])``. ``element_gap`` = ``∫_T [W(ε(v)) + 1/2 Aτ:τ +
+    η²/2H - τ:ε(v)]`` and ``facet_gap`` = ``∫_f λ (v_d - V) + Σ_a q_fa λ_a`` (q the
+    lower bound's obstacle weights, ``∫_f λ I_h psi`` for a convex psi) on the
+    lower bound's contact facets: each ≥ 0, and they sum to ``upper - lower``
+    for an exactly admissible stress field. They are indicators; only the sum is a
+    proof.
+    """
+
+    energy_lower: float
+    energy_upper: float
+    energy_gap_rel: float
+    stress_error_bound: float
+    stress_error_bound_rel: float
+    bounds_certified: bool
+    element_gap: np.ndarray = field(repr=False)
+    facet_gap: np.ndarray = field(repr=False)
+    contact_facets: np.ndarray = field(repr=False)
+
+    @property
+    def energy_gap(self) -> float:
+        return self.energy_upper - self.energy_lower
+
+    def as_dict(self) -> dict:
+        """The keys ``summary.json`` gains."""
+        return {
+            "energy_lower": self.energy_lower,
+            "energy_upper": self.energy_upper,
+            "energy_gap_rel": self.energy_gap_rel,
+            "stress_error_bound": self.stress_error_bound,
+            "stress_error_bound_rel": self.stress_error_bound_rel,
+            "bounds_certified": self.bounds_certified,
+        }
+
+
+def combine(upper: UpperBound, lower) -> Bounds:
+    """The bracket of an :class:`UpperBound` and a lower bound
+    (:class:`elastoplast.bounds.lower.LowerBound`) on the same mesh, with the local
+    gap terms integrated exactly (τ, η linear per element and ε(v) constant; λ and
+    ``v_d - V`` linear on a facet)."""
+    from elastoplast.bounds.lower import facet_measure, mass_matrix
+
+    lo, hi = -float(lower.J), upper.Pi
+    gap = hi - lo
+    local = lower.local
+    element = upper.element_energy + local.element_energy - np.einsum("ek,ek->e", local.element_stress, upper.strain)
+    cf = lower.field.contact_facets
+    d = upper.points.shape[1]
+    w = upper.u[cf, d - 1] - upper.V  # v_d - V at the facet vertices
+    measure = facet_measure(upper.points[cf])
+    facet = measure * np.einsum("fa,ab,fb->f", lower.field.lam, mass_matrix(d - 1), w) + local.facet_psi_work
+    err = float(np.sqrt(2.0 * max(gap, 0.0)))
+    return Bounds(
+        energy_lower=lo,
+        energy_upper=hi,
+        energy_gap_rel=float(gap / abs(hi)) if hi != 0 else np.inf,
+        stress_error_bound=err,
+        stress_error_bound_rel=err / upper.stress_norm if upper.stress_norm > 0 else np.inf,
+        bounds_certified=bool(upper.certified and lower.certified),
+        element_gap=element,
+        facet_gap=facet,
+        contact_facets=cf,
+    )
+
+
+def conservative_discretization(disc: Discretization) -> Discretization:
+    """``disc`` with ψ lowered at every contact node by the largest interpolation
+    allowance ``c_f`` of its facets (``k r²/2``, or what the interval enclosure
+    gives for an expression: the facet rule applied to zero nodal gaps).
+
+    A P1 solution of this problem has nodal gaps ``>= c_f`` against the true ψ on
+    every facet, so it needs no correction: the discrete solver places it where
+    a shift or lift (:func:`upper_bound`) would only push it afterwards.
+    Measured on the 2D cylinder (80 x 40 divisions): Pi = -104.311 from this
+    solution against -104.120 (best correction) and -103.910 (shift) from the
+    solution of the original problem, whose own discrete value is -104.671.
+    """
+    d = disc.dim
+    u = np.zeros((disc.mesh.n_nodes, d))
+    u[disc.contact_nodes, d - 1] = -disc.psi  # zero nodal gaps with U = 0
+    allowance = node_lifts(disc, penetration_bound(disc, u, 0.0))
+    return replace(disc, psi=disc.psi - allowance[disc.contact_nodes])
+
+
+def smallest_upper_bound(disc: Discretization, solution, conservative_solution=None) -> UpperBound:
+    """The smallest of the upper bounds of ``solution``, of ``conservative_solution``
+    (a solution of :func:`conservative_discretization`, when given) and of the body at
+    rest ``(v, V) = (0, 0)``, corrected like any candidate, so admissible whatever ψ.
+    Each is a bound; a certified one ranks before one that is not, whatever their
+    values. The body at rest wins only when the P1 candidates are poor (a coarse mesh
+    or a solve cut short), whose energy can exceed the unloaded body's."""
+    candidates = [upper_bound(disc, solution)]
+    if conservative_solution is not None:
+        other = upper_bound(disc, conservative_solution)
+        candidates.append(replace(other, message=f"{other.message}; from the solution with the conservative obstacle"))
+    rest = upper_bound(disc, (np.zeros((disc.mesh.n_nodes, disc.dim)), 0.0))
+    candidates.append(replace(rest, message=f"{rest.message}; the body at rest (no P1 candidate did better)"))
+    return min(candidates, key=lambda c: (not c.certified, c.Pi))
+
+
+def best_upper_bound(disc: Discretization, solution, method: str = "conic", conservative: bool = True,
+                     **options) -> UpperBound:
+    """:func:`smallest_upper_bound` of ``solution`` and, with ``conservative``, of the
+    solution of :func:`conservative_discretization` solved by ``method`` (left out when
+    that solve does not converge, or for a flat obstacle, which needs no allowance)."""
+    from elastoplast.solvers.registry import solve
+
+    other_sol = None
+    safe = conservative_discretization(disc) if conservative else disc
+    if conservative and not np.array_equal(safe.psi, disc.psi):  # a flat obstacle needs no allowance
+        other_sol = solve(safe, method, **options)
+        if not other_sol.converged:  # the problem's own solution's bound stands
+            other_sol = None
+    return smallest_upper_bound(disc, solution, other_sol)
+
+
+def energy_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
+                  lower_options=None, **options) -> Bounds:
+    """``-J <= Pi* <= Pi`` on ``disc``: :func:`best_upper_bound` of ``solution``
+    (solved by ``method`` when not given) and the lower bound of
+    :func:`elastoplast.bounds.lower.solve_lower_bound`."""
+    return certified_bounds(disc, solution, method, conservative, lower_options, bracket=False, **options).bounds
+
+
+def bounds_at(disc: Discretization, **kwargs) -> Callable[[float], tuple[float, float]]:
+    """``F -> (lo, hi)`` by :func:`energy_bounds` on ``disc`` at load F (for :func:`u_bracket`)."""
+
+    def run(force: float) -> tuple[float, float]:
+        b = energy_bounds(disc.with_force(force), **kwargs)
+        return b.energy_lower, b.energy_upper
+
+    return run
+
+
+# ----------------------------------------------------------------------------
+# the U bracket
+# ----------------------------------------------------------------------------
+
+
+def u_bracket(disc: Discretization, delta: float, solve_bounds_at: Callable[[float], tuple[float, float]]) -> tuple[float, float]:
+    """``(U_lower, U_upper)`` containing the continuum U at ``disc.force``.
+
+    ``Pi*(F)`` is a minimum of functions affine in F, so it is concave with
+    supergradient ``-U(F)``: ``Pi*(F') <= Pi*(F) - U(F) (F' - F)``. With
+    ``lo <= Pi* <= hi`` from ``solve_bounds_at(F) -> (lo, hi)`` at ``F - delta``,
+    F and ``F + delta``:
+
+        U(F) <= (hi(F) - lo(F + delta)) / delta,   U(F) >= (lo(F - delta) - hi(F)) / delta.
+    """
+    F = disc.force
+    if not 0 < delta < F:
+        from elastoplast.errors import InputError
+
+        raise InputError("delta", f"must lie in (0, F) = (0, {F:g}), got {delta!r}")
+    lo_m, _ = solve_bounds_at(F - delta)
+    lo_0, hi_0 = solve_bounds_at(F)
+    lo_p, _ = solve_bounds_at(F + delta)
+    return (lo_m - hi_0) / delta, (hi_0 - lo_p) / delta
+
+
+def choose_delta(force: float, gap: float, dU_dF: float) -> float:
+    """The δ that minimises the predicted width of :func:`u_bracket`.
+
+    With ``lo = Pi* - e_lo`` and ``hi = Pi* + e_hi``, the width is
+
+        [2 Pi*(F) - Pi*(F + δ) - Pi*(F - δ)] / δ + [2 e_hi(F) + e_lo(F + δ) + e_lo(F - δ)] / δ
+        ≈ U'(F) δ + G / δ,
+
+    since ``Pi*'' = -U'``. Taking the gaps at the three loads equal and split
+    evenly, ``G ≈ 2 gap``, so ``δ* = sqrt(2 gap / U')`` and the width is about
+    ``2 sqrt(2 gap U')``. ``U'`` is estimated from discrete solutions
+    (:func:`displacement_slope`). δ is kept below ``F / 2``.
+    """
+    if not (gap > 0 and dU_dF > 0):
+        return 0.5 * force
+    return float(min(np.sqrt(2.0 * gap / dU_dF), 0.5 * force))
+
+
+def displacement_slope(disc: Discretization, method: str = "conic", step: float = 0.05, **options) -> float:
+    """``dU/dF`` of the discrete problem by a central difference ``±step F``
+    (used only to choose δ, so its accuracy does not matter for the bound)."""
+    from elastoplast.solvers.registry import solve
+
+    F = disc.force
+    U = [solve(disc.with_force(F * (1 + s)), method, **options).U for s in (-step, step)]
+    return float((U[1] - U[0]) / (2.0 * step * F))
+
+
+# ----------------------------------------------------------------------------
+# everything the bounds command reports
+# ----------------------------------------------------------------------------
+
+
+#: the smallest energy gap, relative to the energy, used to choose the U bracket's delta
+GAP_FLOOR = 1e-10
+#: times the U bracket's delta above F is divided by 4 when the load there has no admissible field
+BRACKET_RETRIES = 4
+
+
+@dataclass(frozen=True)
+class BoundsReport:
+    """The energy bracket of one problem (:class:`Bounds`), the U bracket from the
+    lower bounds at ``F -/+ delta`` (NaN when not computed), and the two sides it
+    was built from, for their messages and local terms."""
+
+    bounds: Bounds
+    upper: UpperBound = field(repr=False)
+    lower: object = field(repr=False)
+    U_lower: float = float("nan")
+    U_upper: float = float("nan")
+    delta: tuple[float, float] = (float("nan"), float("nan"))
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def certified(self) -> bool:
+        """The energy bracket is a proof; with a U bracket, its two extra lower bounds are too."""
+        return self.bounds.bounds_certified and self.bracket_certified
+
+    bracket_certified: bool = True
+
+    def as_dict(self) -> dict:
+        """The keys ``summary.json`` gains (docs/bounds.md)."""
+        return {
+            **self.bounds.as_dict(),
+            "bounds_certified": self.certified,
+            "U_lower": self.U_lower,
+            "U_upper": self.U_upper,
+            "U_bracket_delta": self.delta[0],
+            "U_bracket_delta_above": self.delta[1],
+            "upper_bound": {"penetration": self.upper.penetration, "shift": self.upper.shift, "lift": self.upper.lift,
+                            "certified": self.upper.certified, "message": self.upper.message},
+            "lower_bound": {"certified": self.lower.certified, "status": self.lower.status.value,
+                            "message": self.lower.message, "certificate_worst": self.lower.certificate.worst,
+                            "iterations": self.lower.iterations},
+            "bounds_timings": self.timings,
+        }
+
+
+def certified_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
+                     lower_options=None, *, bracket: bool = True, **options) -> BoundsReport:
+    """The energy bracket of ``disc`` and, with ``bracket``, the U bracket.
+
+    U bracket (:func:`u_bracket`): only the lower bounds are needed at ``F -/+
+    delta`` (``U >= (lo(F - delta) - hi(F)) / delta``, ``U <= (hi(F) - lo(F + delta'))
+    / delta'``), so two more equilibrium-element programs and no P1 solve; delta is
+    :func:`choose_delta` with the secant ``U / F`` for ``dU/dF`` (delta only sets
+    how tight the bracket is, never whether it holds). The two inequalities hold
+    for any delta each: with H = 0 and F + delta above the mesh's static limit
+    load, ``delta'`` is divided by 4 until the equilibrium element carries the
+    load (at most :data:`BRACKET_RETRIES` times; else ``U_upper = inf``, and the
+    bracket is not called certified).
+    """
+    import time
+
+    from elastoplast.bounds.lower import LowerBoundOptions, solve_lower_bound
+    from elastoplast.solvers.registry import solve
+
+    from elastoplast.certificate.solution import Solution
+
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    if solution is not None:
+        expect(solution, Solution, "solution", "ep.solve(disc, method)")
+    lower_options = LowerBoundOptions.of(lower_options, "lower_options")
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    sol = solve(disc, method, **options) if solution is None else solution
+    upper = best_upper_bound(disc, sol, method, conservative, **options)
+    t1 = time.perf_counter()
+    lower = solve_lower_bound(disc, lower_options)
+    t2 = time.perf_counter()
+    timings.update(upper=t1 - t0, lower=t2 - t1)
+    b = combine(upper, lower)
+    if not bracket:
+        return BoundsReport(bounds=b, upper=upper, lower=lower, timings=timings)
+    U_lo, U_hi, delta, ok = u_bracket_of(disc, b, sol.U, lower_options)  # delta: (below F, above F)
+    timings["bracket"] = time.perf_counter() - t2
+    return BoundsReport(bounds=b, upper=upper, lower=lower, U_lower=U_lo, U_upper=U_hi, delta=delta, timings=timings,
+                        bracket_certified=ok)
+
+
+def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
+                 lower_options=None) -> tuple[float, float, tuple[float, float], bool]:
+    """``(U_lower, U_upper, (delta, delta'), certified)``: the U bracket of :func:`u_bracket` from
+    the energy bracket ``b`` at F and two more lower bounds, at ``F - delta`` and
+    ``F + delta'`` (no P1 solve); see :func:`certified_bounds` for the choice of
+    delta and the shrinking of ``delta'``."""
+    from elastoplast.bounds.lower import LowerBoundOptions, solve_lower_bound
+
+    lower_options = LowerBoundOptions.of(lower_options, "lower_options")
+    F = disc.force
+    # the gap used to choose delta never counts as less than the round-off of the bounds
+    # themselves, so that (round-off of J) / delta stays far below the bracket's width
+    gap = max(b.energy_gap, GAP_FLOOR * abs(b.energy_upper))
+    delta = choose_delta(F, gap, U_h / F if U_h > 0 else 0.0)
+    try:
+        minus = solve_lower_bound(disc.with_force(F - delta), lower_options)
+    except InputError as exc:  # memory taken since the first program was checked: no bracket, said so
+        if exc.field != "mesh":
+            raise
+        warnings.warn(f"no U bracket: {exc.message}")
+        return math.nan, math.nan, (delta, delta), False
+    # with H = 0, F + delta may lie above the mesh's static limit load (no admissible
+    # field there): each side's secant holds for its own delta, so shrink that one
+    plus, delta_plus = None, delta
+    for _ in range(BRACKET_RETRIES):
+        try:
+            plus = solve_lower_bound(disc.with_force(F + delta_plus), lower_options)
+            break
+        except InputError as exc:
+            if exc.field == "mesh":
+                warnings.warn(f"no U bracket: {exc.message}")
+                return math.nan, math.nan, (delta, delta_plus), False
+            if exc.field != "load.force":
+                raise
+            delta_plus /= 4.0
+    U_lo = (minus.lower - b.energy_upper) / delta
+    U_hi = (b.energy_upper - plus.lower) / delta_plus if plus is not None else float("inf")
+    certified = minus.certified and plus is not None and plus.certified
+    return U_lo, U_hi, (delta, delta_plus), certified
+
+
+def element_indicators(disc: Discretization, bounds: Bounds) -> np.ndarray:
+    """The local gap of each element plus the gap of the contact facets it owns
+    (clipped at 0: the terms are >= 0 for an exactly admissible field, round-off
+    aside): the indicator adaptive refinement marks on."""
+    from elastoplast.bounds.lower import facet_topology
+
+    topo = facet_topology(disc.mesh, disc.problem.boundary)
+    eta = np.maximum(np.asarray(bounds.element_gap, dtype=float), 0.0)
+    owners = topo.boundary_elements[topo.contact]
+    np.add.at(eta, owners, np.maximum(np.asarray(bounds.facet_gap, dtype=float), 0.0))
+    return eta
+
+
+def gap_fields(disc: Discretization, bounds: Bounds) -> dict:
+    """What ``solution.vtu`` gains (:func:`elastoplast.io.output.write_vtu` keywords):
+    the local gap per element and per contact facet, and the marking indicator."""
+    return {"cell_data": {"gap": bounds.element_gap, "gap_indicator": element_indicators(disc, bounds)},
+            "facets": (bounds.contact_facets, {"gap": bounds.facet_gap})}

@@ -1,0 +1,187 @@
+"""Solver-independent KKT certificate of (2.1) (docs/certificate.md).
+
+:func:`certify` takes any candidate ``(sigma, xi, u, U)`` (and optionally the
+contact forces the solver claims) and measures how far it is from the discrete
+solution. It uses nothing but the discretisation and the return mapping, so the
+same check applies to every solver.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from elastoplast.fem.discretize import Discretization
+from elastoplast.fem.material import return_mapping
+
+
+#: relative round-off of a computed nodal force: 64 machine epsilons of the sum of the
+#: magnitudes of its terms (a sum of a few dozen products)
+ROUND_OFF = 64 * np.finfo(float).eps
+
+
+@dataclass(frozen=True)
+class KKTResiduals:
+    """Relative KKT residuals of a candidate, each with its scale.
+
+    With ``r = sum_T |T| B_T^T sigma_T`` on the free dofs, ``lam`` the contact
+    forces (given, or ``r`` at the vertical contact dofs), ``g = u_d + psi - U``
+    the gaps and ``delta = max(|U|, max|u|)`` the displacement scale:
+
+    * ``constitutive``: ``||sigma_hat - R(eps(u))||_E / ||R(eps(u))||_E`` in the
+      energy norm ``[.,.]`` (the xi part is dropped when H = 0);
+    * ``constitutive_max``: the same element by element, without volume weights:
+      ``max_T |sigma_hat_T - R_T|_e / max_T |R_T|_e`` with the pointwise norm
+      ``|tau_hat|_e^2 = tau A tau + eta^2 / H``. The global norm dilutes an
+      error confined to one element; this one does not;
+    * ``equilibrium``: ``||r - N^T lam||_2 / ||s||_2`` over the free dofs, where
+      ``s = |B|^T |sigma |T||`` sums, at each dof, the magnitudes of every
+      single term (element and stress component) that enters ``r`` there;
+    * ``force_balance``: ``|sum lam - F| / F``;
+    * ``sign``: ``sum max(-lam, 0) / F``;
+    * ``penetration``: ``max(-g, 0).max() / delta``;
+    * ``complementarity``: ``sum |lam g| / (F delta)``, where a ``lam_i`` within
+      the round-off of its computation (``|lam_i| <= ROUND_OFF * (s_i + p_i)``,
+      ``s_i`` the equilibrium scale at that dof, ``p_i`` the rounding of ``u``
+      propagated, :func:`propagated`) counts as zero: a round-off force times a
+      wide gap (an obstacle far from a node) is no violation;
+    * ``dirichlet``: ``max |u| over fixed dofs / delta``.
+    """
+
+    constitutive: float
+    constitutive_max: float
+    equilibrium: float
+    force_balance: float
+    sign: float
+    penetration: float
+    complementarity: float
+    dirichlet: float
+
+    @property
+    def worst(self) -> float:
+        """The largest residual; NaN if any residual is NaN (a NaN is never "small")."""
+        values = list(self.as_dict().values())
+        return math.nan if any(math.isnan(v) for v in values) else max(values)
+
+    def as_dict(self) -> dict[str, float]:
+        return {k: float(v) for k, v in asdict(self).items()}
+
+
+def energy_density(disc: Discretization, sigma: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """Pointwise ``sigma A sigma + xi^2 / H`` per element (xi dropped when H = 0)."""
+    A = disc.material.compliance(disc.dim)
+    val = np.einsum("ei,ij,ej->e", sigma, A, sigma)
+    H = disc.material.hardening
+    if H > 0:
+        val = val + xi**2 / H
+    return val
+
+
+def energy_norm_sq(disc: Discretization, sigma: np.ndarray, xi: np.ndarray) -> float:
+    """``[sigma_hat, sigma_hat] = sum_T |T| (sigma A sigma + xi^2 / H)``."""
+    return float(disc.volumes @ energy_density(disc, sigma, xi))
+
+
+def gaps(disc: Discretization, u_free: np.ndarray, U: float) -> np.ndarray:
+    """``g_i = u_d(x_i) + psi_i - U`` at the contact nodes."""
+    return disc.N @ u_free + disc.psi - U
+
+
+def contact_forces(disc: Discretization, sigma: np.ndarray) -> np.ndarray:
+    """Contact forces implied by the stresses: ``r`` at the vertical contact dofs."""
+    return disc.N @ disc.internal_force(sigma)
+
+
+#: rows of B per chunk of :func:`abs_transpose_product` (bounds its temporaries to ~12 MB)
+ABS_CHUNK_ROWS = 1 << 18
+
+
+def abs_transpose_product(B, x: np.ndarray) -> np.ndarray:
+    """``|B|^T x`` (entrywise absolute values) for a CSR ``B``, in chunks of rows
+    that share B's index arrays: no copy of B (``abs(B.T)`` was one, 0.6 GB at a
+    million tetrahedra)."""
+    import scipy.sparse as sp
+
+    B = B.tocsr()
+    out = np.zeros(B.shape[1])
+    for s in range(0, B.shape[0], ABS_CHUNK_ROWS):
+        e = min(s + ABS_CHUNK_ROWS, B.shape[0])
+        p0, p1 = B.indptr[s], B.indptr[e]
+        block = sp.csr_matrix((np.abs(B.data[p0:p1]), B.indices[p0:p1], B.indptr[s:e + 1] - p0),
+                              shape=(e - s, B.shape[1]))
+        out += block.T @ x[s:e]
+    return out
+
+
+def _shaped(a, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``a`` as a float array of ``shape`` (the same number of entries in any layout)."""
+    from elastoplast.errors import InputError
+
+    arr = np.asarray(a, dtype=float)
+    if arr.size != int(np.prod(shape)):
+        raise InputError(name, f"expected {int(np.prod(shape))} values {shape}, got {arr.size} {arr.shape}")
+    return arr.reshape(shape)
+
+
+def propagated(disc: Discretization, u_free: np.ndarray) -> np.ndarray:
+    """``|B|^T |T| |C| |B| |u|``: at each dof, how large the terms of ``r`` would be
+    if every displacement entered with its full size. Rounding ``u`` by one
+    epsilon moves ``r`` by at most this times epsilon, however small the strains
+    (a nearly rigid displacement of many times the strain scale cancels in
+    ``B u``, its rounding does not)."""
+    absC = np.abs(disc.material.stiffness(disc.dim))
+    B = disc.B.tocsr()
+    absB = type(B)((np.abs(B.data), B.indices, B.indptr), shape=B.shape)  # shares B's index arrays
+    scale = (absB @ np.abs(u_free)).reshape(disc.n_elements, disc.k) @ absC
+    return abs_transpose_product(B, (scale * disc.volumes[:, None]).ravel())
+
+
+def certify(
+    disc: Discretization,
+    sigma: np.ndarray,
+    xi: np.ndarray,
+    u: np.ndarray,
+    U: float,
+    contact_force: np.ndarray | None = None,
+) -> KKTResiduals:
+    """KKT residuals of the candidate; ``u`` is nodal ``(n_nodes, d)``.
+
+    The candidate's origin does not matter: no solver output other than these
+    arrays is used.
+    """
+    sigma = _shaped(sigma, (disc.n_elements, disc.k), "sigma")
+    xi = _shaped(xi, (disc.n_elements,), "xi")
+    u_all = _shaped(u, (disc.mesh.n_nodes, disc.dim), "u").reshape(-1)
+    u_free = u_all[disc.free]
+    F = disc.force
+
+    sigma_R, xi_R, _ = return_mapping(disc.material, disc.strain(u_free))
+    ref = energy_density(disc, sigma_R, xi_R)
+    diff = energy_density(disc, sigma - sigma_R, xi - xi_R)
+    tiny = np.finfo(float).tiny
+    constitutive = np.sqrt((disc.volumes @ diff) / max(disc.volumes @ ref, tiny))
+    constitutive_max = np.sqrt(diff.max() / max(ref.max(), tiny))
+
+    r = disc.internal_force(sigma)
+    lam = disc.N @ r if contact_force is None else _shaped(contact_force, (disc.n_contact,), "contact_force")
+    magnitude = abs_transpose_product(disc.B, np.abs(sigma * disc.volumes[:, None]).ravel())
+    res = r - disc.N.T @ lam
+    equilibrium = np.linalg.norm(res) / max(np.linalg.norm(magnitude), np.finfo(float).tiny)
+
+    g = gaps(disc, u_free, U)
+    delta = max(abs(U), np.abs(u_all).max(initial=0.0), np.finfo(float).tiny)
+    # a contact force within the round-off of the sum that computes r there is zero to
+    # working precision: it must not count against complementarity at a wide-open gap
+    resolved = np.where(np.abs(lam) > ROUND_OFF * (disc.N @ (magnitude + propagated(disc, u_free))), lam, 0.0)
+    return KKTResiduals(
+        constitutive=float(constitutive),
+        constitutive_max=float(constitutive_max),
+        equilibrium=float(equilibrium),
+        force_balance=float(abs(lam.sum() - F) / F),
+        sign=float(np.maximum(-lam, 0.0).sum() / F),
+        penetration=float(np.maximum(-g, 0.0).max(initial=0.0) / delta),
+        complementarity=float(np.abs(resolved * g).sum() / (F * delta)),
+        dirichlet=float(np.abs(u_all[disc.fixed]).max(initial=0.0) / delta),
+    )

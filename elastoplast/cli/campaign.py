@@ -1,0 +1,707 @@
+"""Reference-solution campaigns: sweeps run on Dask, stored, resumable, comparable.
+
+A campaign file is a problem file (same sections, or ``problem = "file.toml"``
+in ``[campaign]``) with a ``[sweep]`` table of axes; the cases are the product of
+the axes::
+
+    [campaign]
+    name = "cylinder-2d"
+    problem = "cylinder_2d.toml"    # relative to this file; inline sections override it
+
+    [solver]                        # optional: method (default conic), tol, max_iter, rho
+    tol = 1e-10
+
+    [sweep]
+    "load.force" = [2000.0, 4315.0]
+    material.hardening = [1e4, 1e5] # a dotted key is the same axis
+    method = ["conic", "conic-displacement"]
+
+:func:`load_campaign` resolves and validates every case before anything runs
+(an :class:`~elastoplast.errors.InputError` naming the axis);
+:func:`run_campaign` runs the cases not yet in the store on a Dask cluster and
+writes each one as it finishes (:mod:`elastoplast.io.store`); :func:`compare` runs
+another method on every stored reference and reports its errors::
+
+    from elastoplast.cli.campaign import compare, load_campaign, run_campaign
+    from elastoplast.io.store import Store
+
+    run_campaign(load_campaign("problems/campaign_2d.toml"), "refs")  # local cluster
+    store = Store("refs")
+    row = store.rows("status = 'converged' AND json_extract(params, '$.\"load.force\"') = 4315.0")[0]
+    sol = store.load_solution(row["id"])          # an elastoplast Solution
+    problem = store.load_problem(row["id"])       # and its Problem
+    report = compare("refs", "conic-displacement")  # refs/compare-conic-displacement/
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import json
+import logging
+import math
+import os
+import re
+import shutil
+import statistics
+import sys
+import tempfile
+import traceback
+import warnings
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Mapping, Sequence
+
+import numpy as np
+
+from elastoplast.errors import InputError
+from elastoplast.io.output import check_output_dir, json_text, staged_output
+from elastoplast.problem.definition import SECTIONS, problem_from_dict, read_toml
+from elastoplast.solvers.registry import check_solvable, method_options, solver_settings
+from elastoplast.io.store import ERROR, ResolvedInput, Store, atomic_write, case_record, content_hash, rebuild_problem, resolve
+
+
+
+# ----------------------------------------------------------------------------
+# the campaign file
+# ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Case:
+    """One sweep point: its axis values and its resolved input (``case_id`` is the hash)."""
+
+    params: Mapping[str, Any]
+    input: ResolvedInput
+    case_id: str
+    problem_id: str
+
+
+@dataclass(frozen=True)
+class Campaign:
+    """A validated campaign: its ``axes`` in file order and its distinct ``cases``."""
+
+    name: str
+    axes: Mapping[str, tuple]
+    cases: tuple[Case, ...]
+    #: sweep points that resolved to an earlier case (e.g. "sphere" and "cylinder" in 2D)
+    n_duplicates: int = 0
+
+
+def _axes(sweep: Any) -> dict[str, list]:
+    """Flatten ``[sweep]`` into ``{dotted key: values}``; ``method`` means ``solver.method``."""
+    if not isinstance(sweep, Mapping):
+        raise InputError("sweep", f"must be a table of axes, got {sweep!r}")
+    axes: dict[str, list] = {}
+
+    def walk(table: Mapping, prefix: str) -> None:
+        for key, val in table.items():
+            path = f"{prefix}{key}"
+            if isinstance(val, Mapping):
+                walk(val, f"{path}.")
+            else:
+                axes["solver.method" if path == "method" else path] = val
+
+    walk(sweep, "")
+    if "method" in sweep and "solver" in sweep and "method" in sweep["solver"]:
+        raise InputError("sweep.method", "given twice (as method and solver.method)")
+    for axis, values in axes.items():
+        name = f"sweep.{axis}"
+        head = axis.split(".")
+        if head[0] not in CASE_SECTIONS or len(head) < 2:
+            raise InputError(name, f"unknown key: an axis is 'method' or a dotted key in {sorted(CASE_SECTIONS)}")
+        if head[0] == "solver" and len(head) != 2:
+            raise InputError(name, "unknown key (a solver axis is 'method' or 'solver.<option>')")
+        if not isinstance(values, list):
+            raise InputError(name, f"must be a list of values, got {values!r}")
+        if not values:
+            raise InputError(name, "is an empty list (the campaign would have no case)")
+    return axes
+
+
+#: the sections of a case: a problem's, and ``[adapt]`` (an adaptive target, see :func:`adapt_settings`)
+CASE_SECTIONS = SECTIONS | {"adapt"}
+
+
+def adapt_settings(section: Mapping[str, Any] | None, method: str) -> dict[str, Any] | None:
+    """The adaptive target of a case from its ``[adapt]`` table (``rtol``, ``theta``,
+    ``max_elements``, ``time_limit``, ``bracket``, ...: the options of
+    :class:`~elastoplast.adapt.loop.AdaptOptions`), checked; ``None`` without one. The case
+    then runs :func:`~elastoplast.adapt.loop.adapt` with the case's method as the P1
+    solver, and stores the final mesh, its solution and its bounds."""
+    from elastoplast.adapt.loop import AdaptOptions
+
+    if section is None:
+        return None
+    if not isinstance(section, Mapping):
+        raise InputError("adapt", f"must be a table, got {section!r}")
+    if "method" in section:
+        raise InputError("adapt.method", "the P1 solver of an adaptive case is the case's method ([solver] or a "
+                                         "method axis)")
+    AdaptOptions.build({**section, "method": method}, prefix="adapt.")
+    return {k: section[k] for k in sorted(section)}
+
+
+def _set(data: dict, axis: str, value: Any) -> None:
+    keys = axis.split(".")
+    node = data
+    for i, key in enumerate(keys[:-1]):
+        node = node.setdefault(key, {})
+        if not isinstance(node, dict):
+            raise InputError(f"sweep.{axis}", f"{'.'.join(keys[: i + 1])} is not a table")
+    node[keys[-1]] = copy.deepcopy(value)
+
+
+def _blame(exc: InputError, point: Mapping[str, Any]) -> InputError:
+    """Re-raise a problem's complaint about a sweep point under the axis it concerns."""
+    for axis, value in point.items():
+        if exc.field == axis or exc.field.startswith(axis + ".") or axis.startswith(exc.field + "."):
+            return InputError(f"sweep.{axis}", f"value {value!r}: {exc.field}: {exc.message}")
+    where = ", ".join(f"{a} = {v!r}" for a, v in point.items())
+    return InputError("sweep", f"the point ({where}): {exc.field}: {exc.message}")
+
+
+def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name: str = "campaign") -> Campaign:
+    """Resolve and validate every case of a campaign given as nested dicts.
+
+    Each sweep point is built as a problem, its solver settings checked and its
+    problem discretised once (which refuses geometric nonsense such as an
+    obstacle narrower than the contact zone), all before anything runs.
+    """
+    from elastoplast.fem.discretize import discretize
+
+    base_dir = Path(base_dir)
+    if not isinstance(data, Mapping):
+        raise InputError("campaign", f"must be a table, got {data!r}")
+    unknown = sorted(set(data) - CASE_SECTIONS - {"campaign", "sweep"})
+    if unknown:
+        raise InputError(unknown[0], f"unknown section (allowed: {sorted(CASE_SECTIONS | {'campaign', 'sweep'})})")
+    head = data.get("campaign", {})
+    if not isinstance(head, Mapping) or set(head) - {"name", "problem"}:
+        raise InputError("campaign", f"allowed keys are 'name' and 'problem', got {head!r}")
+    name = str(head.get("name", name))
+    base: dict = {}
+    problem_dir = base_dir
+    if "problem" in head:
+        path = base_dir / str(head["problem"])
+        if not path.is_file():
+            raise InputError("campaign.problem", f"file not found: {path}")
+        base, problem_dir = read_toml(path, field="campaign.problem"), path.parent
+    for section in CASE_SECTIONS & set(data):
+        if not isinstance(data[section], Mapping):
+            raise InputError(section, f"must be a table, got {data[section]!r}")
+        base[section] = {**base.get(section, {}), **copy.deepcopy(dict(data[section]))}
+    axes = _axes(data.get("sweep", {}))
+
+    cases: dict[str, Case] = {}
+    meshes: dict[str, dict] = {}  # one copy of each distinct mesh
+    checked: dict[str, Any] = {}  # problem id -> its discretisation (the last few, for the checks)
+    n_points = 0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for values in itertools.product(*axes.values()):
+            n_points += 1
+            point = dict(zip(axes, values))
+            case_data = copy.deepcopy(base)
+            for axis, value in point.items():
+                _set(case_data, axis, value)
+            try:
+                method, options = solver_settings(case_data.pop("solver", {}))
+                target = adapt_settings(case_data.pop("adapt", None), method)
+                problem = problem_from_dict(case_data, problem_dir)
+                if target is not None:
+                    from elastoplast.adapt.loop import check_adaptable
+
+                    check_adaptable(problem)  # H = 0 cannot be adapted: refused now, not recorded as failed
+                inp = resolve(problem, method, options, adapt=target)
+                mesh_key = content_hash({}, inp.arrays)
+                inp = ResolvedInput(spec=inp.spec, arrays=meshes.setdefault(mesh_key, dict(inp.arrays)))
+                problem_id = inp.problem_id
+                disc = checked.pop(problem_id, None) or discretize(problem)
+                checked[problem_id] = disc
+                while len(checked) > 8:  # bounded memory for long sweeps
+                    checked.pop(next(iter(checked)))
+                opts = method_options(method, options)
+                try:
+                    check_solvable(disc, method, opts)
+                except InputError as exc:  # an option that does not suit the problem: name it as written
+                    field = f"solver.{exc.field}" if exc.field in opts.specs() else exc.field
+                    raise InputError(field, exc.message) from None
+            except InputError as exc:
+                raise _blame(exc, point) from None
+            case_id = inp.case_id
+            cases.setdefault(case_id, Case(params=point, input=inp, case_id=case_id, problem_id=problem_id))
+    for message in dict.fromkeys(str(w.message) for w in caught):
+        warnings.warn(message, stacklevel=2)
+    return Campaign(name=name, axes={a: tuple(v) for a, v in axes.items()}, cases=tuple(cases.values()),
+                    n_duplicates=n_points - len(cases))
+
+
+def load_campaign(path: str | Path) -> Campaign:
+    """Read and validate a campaign TOML file (see the module docstring)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("campaign", f"file not found: {path}")
+    return campaign_from_dict(read_toml(path, field="campaign", what="campaign file"), path.parent, name=path.stem)
+
+
+# ----------------------------------------------------------------------------
+# running on Dask
+# ----------------------------------------------------------------------------
+
+
+def machine_cores() -> int:
+    """Cores this process may use (the affinity mask, not the host's total)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return os.cpu_count() or 1
+
+
+#: most local workers per core (each is a process holding its own problems)
+MAX_WORKERS_PER_CORE = 4
+_ADDRESS = re.compile(r"^((tcp|tls|inproc|ucx|ws|wss)://)?(\[[0-9a-fA-F:]+\]|[A-Za-z0-9_.-]+)(:\d{1,5})?/?$")
+
+
+def check_cluster(scheduler: str | None, n_workers: int | None) -> None:
+    """Refuse a scheduler address that cannot be one and a local cluster size
+    that is not a positive number of processes this machine can hold."""
+    if scheduler is not None:
+        port = scheduler.rsplit(":", 1)[-1].rstrip("/")
+        if (not isinstance(scheduler, str) or not _ADDRESS.match(scheduler.strip())
+                or (port.isdigit() and not 0 < int(port) < 65536)):
+            raise InputError("scheduler", f"{scheduler!r} is not a scheduler address (e.g. tcp://127.0.0.1:8786)")
+        if n_workers is not None:
+            raise InputError("workers", "applies to the local cluster only, not with a scheduler address")
+    if n_workers is not None:
+        most = MAX_WORKERS_PER_CORE * machine_cores()
+        if isinstance(n_workers, bool) or not isinstance(n_workers, int) or not 1 <= n_workers <= most:
+            raise InputError("workers", f"must be an integer from 1 to {most} ({MAX_WORKERS_PER_CORE} per core), "
+                                        f"got {n_workers!r}")
+
+
+def _probe(scheduler: str) -> None:
+    """Fail at once when nothing listens at a TCP address (Dask would retry for its whole timeout)."""
+    import socket
+
+    rest = scheduler.strip().split("://", 1)[-1].rstrip("/")
+    if scheduler.startswith(("tcp://", "tls://")) or "://" not in scheduler:
+        host, _, port = rest.rpartition(":")
+        if host and port.isdigit():
+            try:
+                socket.create_connection((host.strip("[]"), int(port)), timeout=5.0).close()
+            except OSError as exc:
+                raise InputError("scheduler", f"cannot connect to {scheduler}: {exc.strerror or exc}") from None
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> Iterator[Any]:
+    """A client of the cluster at ``scheduler``, or of a local cluster with one
+    single-threaded worker process per core (``n_workers`` to override)."""
+    from distributed import Client, LocalCluster
+
+    check_cluster(scheduler, n_workers)
+    if scheduler:
+        _probe(scheduler)
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise InputError("scheduler", f"cannot connect to {scheduler}: {exc}") from None
+        with client:
+            yield client
+        return
+    n = n_workers or machine_cores()
+    # loopback only; no dashboard, and the scheduler's HTTP routes on a free port
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}, silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client:
+        yield client
+
+
+def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """Worker task: rebuild, discretise and solve one case.
+
+    Returns ``{"solution", "summary", "vtu", "worker"}`` (the VTU as bytes so
+    that workers need no shared file system), or ``{"error", "traceback",
+    "worker"}`` if anything raised.
+    """
+    from elastoplast.fem.discretize import discretize
+    from elastoplast.io.output import write_files
+    from elastoplast.solvers.registry import solve
+
+    worker = _worker_address()
+    try:
+        problem = rebuild_problem(spec, arrays)
+        if spec.get("adapt") is not None:
+            return {**adaptive_case(problem, spec), "worker": worker}
+        disc = discretize(problem)
+        sol = solve(disc, spec["method"], **spec["options"])
+        with tempfile.TemporaryDirectory(prefix="elastoplast-case-") as tmp:
+            data = write_files(Path(tmp), disc, sol)
+            vtu = (Path(tmp) / "solution.vtu").read_bytes()
+        return {"solution": sol, "summary": data, "vtu": vtu, "worker": worker}
+    except Exception as exc:  # recorded in the store; the campaign goes on
+        return {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(), "worker": worker}
+
+
+def adaptive_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
+    """Run a case with an adaptive target: :func:`~elastoplast.adapt.loop.adapt` from the
+    case's mesh with its method, then the final mesh's solution, summary (with the
+    bounds and the U bracket) and VTU, the final mesh (``adapted.msh``) and the
+    table of steps (``adapt.json``). The stored status is ``converged`` when the
+    target was reached with certified bounds, else the budget that stopped it."""
+    import dataclasses
+
+    from elastoplast.adapt.loop import AdaptOptions, adapt
+    from elastoplast.bounds.upper import gap_fields
+    from elastoplast.mesh.base import write_mesh
+    from elastoplast.io.output import json_text, write_files
+    from elastoplast.certificate.solution import Status
+
+    options = AdaptOptions.build({**spec["adapt"], "method": spec["method"]})
+    run = adapt(problem, options)
+    final, b = run.final, run.bounds
+    reached = final.certified and final.gap_rel <= options.rtol
+    status = Status.CONVERGED if reached else (Status.TIME_LIMIT if "time_limit" in run.reason else Status.MAX_ITERATIONS)
+    sol = dataclasses.replace(run.solution, status=status, message=f"adapt: {run.reason}; {run.solution.message}")
+    bounds = {**b.as_dict(), "U_lower": final.U_lower, "U_upper": final.U_upper, "final_elements": final.n_elements,
+              "adapt_steps": len(run.steps), "adapt_reason": run.reason}
+    with tempfile.TemporaryDirectory(prefix="elastoplast-case-") as tmp:
+        data = write_files(Path(tmp), run.disc, sol, extra=bounds, **gap_fields(run.disc, b))
+        vtu = (Path(tmp) / "solution.vtu").read_bytes()
+        write_mesh(Path(tmp) / "adapted.msh", run.disc.mesh)
+        files = {"adapted.msh": (Path(tmp) / "adapted.msh").read_bytes(),
+                 "adapt.json": json_text({"reason": run.reason, "steps": [s.as_dict() for s in run.steps]}).encode()}
+    return {"solution": sol, "summary": data, "vtu": vtu, "files": files, "bounds": bounds}
+
+
+#: a problem small enough to solve in milliseconds, to warm each worker up
+WARM_UP_PROBLEM = {
+    "mesh": {"generator": "rectangle", "size": [8.0, 4.0], "divisions": [8, 2], "contact_radius": 2.0},
+    "material": {"E": 200000.0, "nu": 0.3, "yield_stress": 1200.0, "hardening": 10000.0},
+    "obstacle": {"shape": "cylinder", "radius": 40.0},
+    "load": {"force": 100.0},
+}
+
+
+def warm_up(methods: Sequence[str]) -> None:
+    """Solve :data:`WARM_UP_PROBLEM` by each method once (run on every worker), so
+    that no case's timings include a solver's first imports and compilation.
+    Failures are left to the real cases to report."""
+    from elastoplast.fem.discretize import discretize
+    from elastoplast.solvers.registry import solve
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            disc = discretize(problem_from_dict(WARM_UP_PROBLEM))
+        except InputError:  # pragma: no cover - the problem above is valid
+            return
+        for method in methods:
+            try:
+                solve(disc, method)
+            except Exception:
+                pass
+
+
+def _worker_address() -> str | None:
+    from distributed import get_worker
+
+    try:
+        return get_worker().address
+    except ValueError:  # called outside a Dask worker
+        return None
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="case", disable=not enabled, file=sys.stderr, dynamic_ncols=True)
+
+
+def _failed(out: Mapping[str, Any]) -> bool:
+    """Whether a task result (of :func:`run_case` or :func:`compare_problem`) is not a converged solve."""
+    if "error" in out:
+        return True
+    return out["status"] != "converged" if "status" in out else not out["solution"].converged
+
+
+def _gather(client: Any, tasks: Mapping[str, tuple], desc: str, progress: bool) -> Iterator[tuple[str, dict]]:
+    """Warm the workers up, submit ``{key: (fn, spec, *args)}`` and yield
+    ``(key, result)`` as tasks finish; a task whose worker died yields an error
+    result instead."""
+    from distributed import as_completed
+
+    client.run(warm_up, sorted({task[1]["method"] for task in tasks.values()}))
+    futures = {client.submit(*task, key=key, pure=False): key for key, task in tasks.items()}
+    failed = 0
+    with _progress(len(futures), desc, progress) as bar:
+        for fut in as_completed(futures):
+            try:
+                out = fut.result()
+            except Exception as exc:  # a lost worker, a cancelled task
+                out = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+            fut.release()
+            failed += _failed(out)
+            bar.update(1)
+            bar.set_postfix(failed=failed)
+            yield futures[fut], out
+
+
+@dataclass(frozen=True)
+class CampaignRun:
+    """What :func:`run_campaign` did: case ids skipped (already stored) and run,
+    with the status each run ended in (``error`` when it raised)."""
+
+    store: Path
+    skipped: tuple[str, ...]
+    statuses: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def failed(self) -> dict[str, str]:
+        return {k: v for k, v in self.statuses.items() if v != "converged"}
+
+
+def run_campaign(campaign: Campaign, out: str | Path, *, scheduler: str | None = None, client: Any = None,
+                 n_workers: int | None = None, progress: bool = True, retry_failed: bool = False) -> CampaignRun:
+    """Run the cases of ``campaign`` that ``out`` does not hold yet and store each.
+
+    Skipped: every stored case except those whose run raised (``error``: a crash
+    or a lost worker, worth retrying); ``retry_failed`` also re-runs those the
+    solver did not solve. ``client`` (a ``distributed.Client``) wins over
+    ``scheduler``; without both a local cluster is started.
+    """
+    if client is None:
+        check_cluster(scheduler, n_workers)
+    store = Store(out)
+    created = not store.path.exists()
+    try:
+        return _run(campaign, store, scheduler, client, n_workers, progress, retry_failed)
+    except InputError:  # e.g. no scheduler at the address: leave no empty store behind
+        if created and not store.rows():
+            shutil.rmtree(store.path, ignore_errors=True)
+        raise
+
+
+def _run(campaign: Campaign, store: Store, scheduler: str | None, client: Any, n_workers: int | None,
+         progress: bool, retry_failed: bool) -> CampaignRun:
+    with store.writer():
+        keep = {r["id"]: r["status"] for r in store.rows()}
+        keep = {k: s for k, s in keep.items() if s != ERROR and not (retry_failed and s != "converged")}
+        todo = {c.case_id: c for c in campaign.cases if c.case_id not in keep}
+        skipped = tuple(c.case_id for c in campaign.cases if c.case_id in keep)
+        statuses: dict[str, str] = {}
+        if not todo:
+            return CampaignRun(store=store.path, skipped=skipped)
+        tasks = {f"elastoplast-case-{cid}": (run_case, dict(c.input.spec), dict(c.input.arrays)) for cid, c in todo.items()}
+        with _client(client, scheduler, n_workers) as cl:
+            for key, result in _gather(cl, tasks, campaign.name, progress):
+                case = todo[key.removeprefix("elastoplast-case-")]
+                record = case_record(case.input, case.params, campaign.name, **result)
+                store.add(record)
+                statuses[case.case_id] = record.row["status"]
+    return CampaignRun(store=store.path, skipped=skipped, statuses=statuses)
+
+
+@contextmanager
+def _client(client: Any, scheduler: str | None, n_workers: int | None) -> Iterator[Any]:
+    if client is not None:
+        yield client
+        return
+    with dask_client(scheduler, n_workers) as cl:
+        yield cl
+
+
+# ----------------------------------------------------------------------------
+# comparing a method against the stored references
+# ----------------------------------------------------------------------------
+
+
+def solution_errors(disc, sol, ref) -> dict[str, float]:
+    """Errors of ``sol`` against the reference ``ref`` (both Solutions of ``disc``):
+
+    * ``U_rel = |U - U_ref| / |U_ref|``;
+    * ``sigma_rel = sqrt([s - s_ref, s - s_ref] / [s_ref, s_ref])`` in the energy
+      inner product of docs/math.md (``s = (sigma, xi)``; the xi part is
+      dropped when H = 0);
+    * ``time_ratio = time / time_ref`` (each solver's own ``timings['total']``).
+    """
+    from elastoplast.certificate.kkt import energy_norm_sq
+
+    ref_norm = energy_norm_sq(disc, ref.sigma, ref.xi)
+    diff = energy_norm_sq(disc, sol.sigma - ref.sigma, sol.xi - ref.xi)
+    tiny = np.finfo(float).tiny
+    return {
+        "U_rel": abs(sol.U - ref.U) / max(abs(ref.U), tiny),
+        "sigma_rel": math.sqrt(diff / max(ref_norm, tiny)),
+        "time_ratio": sol.time_s / max(ref.time_s, tiny),
+    }
+
+
+def compare_problem(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray], refs: Sequence[tuple[str, Any]]) -> dict:
+    """Worker task: solve one stored problem by ``spec['method']`` and measure it
+    against each reference ``(case_id, Solution)`` of that problem."""
+    from elastoplast.fem.discretize import discretize
+    from elastoplast.solvers.registry import solve
+
+    try:
+        disc = discretize(rebuild_problem(spec, arrays))
+        sol = solve(disc, spec["method"], **spec["options"])
+    except Exception as exc:
+        return {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+    return {
+        "status": sol.status.value, "message": sol.message, "U": sol.U, "kkt_worst": sol.kkt.worst,
+        "iterations": sol.iterations, "time_s": sol.time_s,
+        "errors": {case_id: solution_errors(disc, sol, ref) for case_id, ref in refs},
+    }
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Per reference case (``rows``) and overall (``summary``) errors of ``method``."""
+
+    method: str
+    rows: tuple[dict[str, Any], ...]
+    summary: Mapping[str, Any]
+
+    def markdown(self) -> str:
+        head = ["case", "parameters", "reference", "status", "U ref", "U", "U rel. err.", "σ energy rel. err.",
+                "KKT worst", "t ref [s]", "t [s]", "time ratio"]
+        lines = [f"# {self.method} against the stored references", "",
+                 "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for r in self.rows:
+            cells = [r["case"][:12], _params_text(r["params"]), r["reference_method"], r["status"],
+                     _g(r["U_ref"]), _g(r.get("U")), _e(r.get("U_rel")), _e(r.get("sigma_rel")),
+                     _e(r.get("kkt_worst")), _g(r["time_ref"]), _g(r.get("time_s")), _g(r.get("time_ratio"))]
+            lines.append("| " + " | ".join(cells) + " |")
+        s = self.summary
+        lines += ["", f"{s['n_cases']} reference case(s), {s['n_problems']} problem(s); {_method_runs(s)}."]
+        if s["n_compared"]:
+            lines += [f"- U relative error: max {_e(s['U_rel_max'])}, median {_e(s['U_rel_median'])}",
+                      f"- σ energy relative error: max {_e(s['sigma_rel_max'])}, median {_e(s['sigma_rel_median'])}",
+                      f"- time ratio ({self.method} / reference): median {_g(s['time_ratio_median'])}, "
+                      f"geometric mean {_g(s['time_ratio_geomean'])}"]
+        return "\n".join(lines) + "\n"
+
+
+def _method_runs(s: Mapping[str, Any]) -> str:
+    return f"{s['n_converged']} converged, {s['n_not_converged']} not converged, {s['n_errors']} raised"
+
+
+def _g(x: Any) -> str:
+    return "–" if x is None else f"{x:.4g}"
+
+
+def _e(x: Any) -> str:
+    return "–" if x is None else f"{x:.2e}"
+
+
+def _params_text(params: Mapping[str, Any]) -> str:
+    return ", ".join(f"{k}={json.dumps(v)}" for k, v in params.items()) or "–"
+
+
+def _summarise(rows: Sequence[dict[str, Any]], n_problems: int) -> dict[str, Any]:
+    ok = [r for r in rows if r["status"] == "converged"]
+    out: dict[str, Any] = {
+        "n_cases": len(rows), "n_problems": n_problems, "n_compared": len(ok),
+        "n_converged": sum(r["status"] == "converged" for r in rows),
+        "n_not_converged": sum(r["status"] not in ("converged", ERROR) for r in rows),
+        "n_errors": sum(r["status"] == ERROR for r in rows),
+    }
+    if ok:
+        for key in ("U_rel", "sigma_rel"):
+            vals = [r[key] for r in ok]
+            out[f"{key}_max"], out[f"{key}_median"] = max(vals), statistics.median(vals)
+        ratios = [r["time_ratio"] for r in ok]
+        out["time_ratio_median"] = statistics.median(ratios)
+        out["time_ratio_geomean"] = math.exp(statistics.fmean(math.log(max(x, 1e-300)) for x in ratios))
+    return out
+
+
+def plot_comparison(comparison: Comparison, path: str | Path) -> None:
+    """Errors (log scale) and time ratios per reference case, written as PNG."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in comparison.rows if r.get("U_rel") is not None]
+    x = np.arange(len(rows))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+    floor = np.finfo(float).eps  # an exact match would vanish from a log axis
+    ax1.semilogy(x, [max(r["U_rel"], floor) for r in rows], "o", label="U relative")
+    ax1.semilogy(x, [max(r["sigma_rel"], floor) for r in rows], "s", label="σ energy relative")
+    ax1.set(xlabel="reference case", ylabel="relative error (drawn at least at machine ε)",
+            title=f"{comparison.method} against the references")
+    ax1.legend()
+    ax2.semilogy(x, [r["time_ratio"] for r in rows], "d")
+    ax2.axhline(1.0, color="grey", lw=0.8)
+    ax2.set(xlabel="reference case", ylabel=f"time {comparison.method} / time reference", title="time ratio")
+    for ax in (ax1, ax2):
+        ax.set_xticks(x, [r["case"][:6] for r in rows], rotation=90, fontsize=7)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    plt.close(fig)
+    atomic_write(path, buf.getvalue())
+
+
+def compare(store_dir: str | Path, method: str, *, options: Mapping[str, Any] | None = None,
+            reference_method: str | None = None, out: str | Path | None = None, scheduler: str | None = None,
+            client: Any = None, n_workers: int | None = None, progress: bool = True) -> Comparison:
+    """Run ``method`` on every converged stored case (its reference) and report.
+
+    Each distinct problem is solved once and measured against every reference of
+    it. Writes ``report.md``, ``compare.png`` and ``compare.json`` into ``out``
+    (default ``DIR/compare-<method>``) and returns the :class:`Comparison`.
+    """
+    if client is None:
+        check_cluster(scheduler, n_workers)
+    store = Store(store_dir)
+    if not store.exists():
+        raise InputError("store", f"no campaign store at {store.path} (no index.sqlite)")
+    method, options = solver_settings({"method": method, **(options or {})}, prefix="compare")
+    out_dir = Path(out) if out is not None else store.path / f"compare-{method}"
+    check_output_dir(out_dir, "out")  # before any work
+    where, params = "status = 'converged'", ()
+    if reference_method is not None:
+        where, params = where + " AND method = ?", (reference_method,)
+    rows = store.rows(where, params)
+    refs = [r for r in rows if r.get("final_elements") is None]  # adaptive cases: own meshes
+    if not refs:
+        raise InputError("reference_method" if reference_method else "store", f"no converged reference case in {store.path}"
+                         + (f" solved by {reference_method!r}" if reference_method else "")
+                         + (f" ({len(rows)} adaptive case(s), on meshes of their own, are not compared)" if rows else ""))
+    by_problem: dict[str, list[dict]] = {}
+    for row in refs:
+        by_problem.setdefault(row["problem_id"], []).append(row)
+    tasks = {}
+    for problem_id, rows in by_problem.items():
+        inp = store.load_input(rows[0]["id"])
+        spec = {**resolve(rebuild_problem(inp.spec, inp.arrays), method, options).spec}
+        solutions = [(r["id"], store.load_solution(r["id"])) for r in rows]
+        tasks[f"elastoplast-compare-{method}-{problem_id}"] = (compare_problem, spec, inp.arrays, solutions)
+    results: dict[str, dict] = {}
+    with _client(client, scheduler, n_workers) as cl:
+        for key, result in _gather(cl, tasks, f"compare {method}", progress):
+            results[key.rsplit("-", 1)[1]] = result
+    rows_out = []
+    for row in refs:
+        res = results[row["problem_id"]]
+        entry = {"case": row["id"], "params": json.loads(row["params"]), "reference_method": row["method"],
+                 "U_ref": row["U"], "time_ref": row["time_total"]}
+        if "error" in res:
+            entry.update(status=ERROR, error=res["error"])
+        else:
+            entry.update(status=res["status"], U=res["U"], kkt_worst=res["kkt_worst"], time_s=res["time_s"],
+                         iterations=res["iterations"], message=res["message"], **res["errors"][row["id"]])
+        rows_out.append(entry)
+    comparison = Comparison(method=method, rows=tuple(rows_out), summary=_summarise(rows_out, len(by_problem)))
+    with staged_output(out_dir, "out") as tmp:
+        atomic_write(tmp / "report.md", comparison.markdown().encode())
+        atomic_write(tmp / "compare.json", json_text({"method": method, "options": options, "rows": rows_out,
+                                                      "summary": comparison.summary}).encode())
+        plot_comparison(comparison, tmp / "compare.png")
+    return comparison

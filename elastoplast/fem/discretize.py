@@ -1,0 +1,470 @@
+"""Discrete operators of (2.1): P1 displacements, P0 stresses (docs/math.md).
+
+Everything is vectorised over elements; each global operator is one sparse build.
+Degrees of freedom are numbered ``node * d + component``; ``free`` lists the
+ones not fixed by a Dirichlet condition and every operator acts on those.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import factorial
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from elastoplast.mesh.checks import check_mesh_size
+from elastoplast.errors import InputError, expect
+from elastoplast.fem.material import Material, n_components
+from elastoplast.mesh.base import Mesh, _boundary_facets
+from elastoplast.problem.definition import Problem
+
+INV_SQRT2 = 1.0 / np.sqrt(2.0)
+
+# Mandel rows of eps = sym(grad u) as (component, derivative, weight) triples.
+_STRAIN_ROWS = {
+    2: [[(0, 0, 1.0)], [(1, 1, 1.0)], [], [(0, 1, INV_SQRT2), (1, 0, INV_SQRT2)]],
+    3: [
+        [(0, 0, 1.0)],
+        [(1, 1, 1.0)],
+        [(2, 2, 1.0)],
+        [(1, 2, INV_SQRT2), (2, 1, INV_SQRT2)],
+        [(0, 2, INV_SQRT2), (2, 0, INV_SQRT2)],
+        [(0, 1, INV_SQRT2), (1, 0, INV_SQRT2)],
+    ],
+}
+
+
+@dataclass(frozen=True)
+class Discretization:
+    """The data of the discrete problem (2.1) for one :class:`Problem`.
+
+    ``B`` maps free dofs to element strains stacked element by element
+    (``(n_el * k, n_free)``), ``volumes`` are ``|T|``, ``N`` picks the vertical
+    dof of each contact node (``(n_contact, n_free)``), ``psi`` is the obstacle
+    at the contact nodes and ``contact_area`` their lumped share of the flat
+    boundary ``x_d = 0`` (used only to turn forces into pressures).
+    """
+
+    problem: Problem
+    volumes: np.ndarray
+    B: sp.csr_matrix
+    free: np.ndarray
+    fixed: np.ndarray
+    contact_nodes: np.ndarray
+    N: sp.csr_matrix
+    psi: np.ndarray
+    contact_area: np.ndarray
+
+    @property
+    def mesh(self) -> Mesh:
+        return self.problem.mesh
+
+    @property
+    def material(self) -> Material:
+        return self.problem.material
+
+    @property
+    def dim(self) -> int:
+        return self.problem.mesh.dim
+
+    @property
+    def k(self) -> int:
+        return n_components(self.dim)
+
+    @property
+    def n_elements(self) -> int:
+        return self.volumes.size
+
+    @property
+    def n_free(self) -> int:
+        return self.free.size
+
+    @property
+    def n_contact(self) -> int:
+        return self.contact_nodes.size
+
+    @property
+    def force(self) -> float:
+        return self.problem.force
+
+    @property
+    def length_scale(self) -> float:
+        """Largest extent of the body."""
+        pts = self.mesh.points
+        return float(np.max(pts.max(axis=0) - pts.min(axis=0)))
+
+    def strain(self, u_free: np.ndarray) -> np.ndarray:
+        """Element strains ``(n_el, k)`` of free-dof displacements."""
+        return (self.B @ u_free).reshape(self.n_elements, self.k)
+
+    def internal_force(self, sigma: np.ndarray) -> np.ndarray:
+        """``r = sum_T |T| B_T^T sigma_T`` on the free dofs."""
+        return self.B.T @ (sigma * self.volumes[:, None]).ravel()
+
+    def weighted_gram(self, M: np.ndarray) -> sp.csr_matrix:
+        """``sum_T |T| B_T^T M_T B_T`` on the free dofs, for one ``M (k, k)`` shared by
+        every element (Uzawa's metric with M = I, the elastic stiffness with M = C)
+        or one per element, ``M (n_el, k, k)`` (the tangent stiffness)."""
+        if M.ndim == 2:
+            D = sp.kron(sp.diags(self.volumes), sp.csr_matrix(M), format="csr")
+        else:
+            n = self.n_elements
+            D = sp.bsr_matrix((M * self.volumes[:, None, None], np.arange(n), np.arange(n + 1)),
+                              shape=(n * self.k, n * self.k)).tocsr()
+        return (self.B.T @ D @ self.B).tocsr()
+
+    def full_displacement(self, u_free: np.ndarray) -> np.ndarray:
+        """Nodal displacements ``(n_nodes, d)`` with zeros at fixed dofs."""
+        u = np.zeros(self.mesh.n_nodes * self.dim)
+        u[self.free] = u_free
+        return u.reshape(-1, self.dim)
+
+    def free_displacement(self, u: np.ndarray) -> np.ndarray:
+        return np.asarray(u, dtype=float).reshape(-1)[self.free]
+
+    def contact_radii(self) -> np.ndarray:
+        """Distance of each contact node from the obstacle centre in the plane."""
+        xp = self.mesh.points[self.contact_nodes, :-1]
+        return np.linalg.norm(xp - np.asarray(self.problem.obstacle.center), axis=1)
+
+    def with_force(self, force: float) -> "Discretization":
+        """The same operators for another load (nothing is rebuilt); ``force`` finite and > 0."""
+        from dataclasses import replace
+
+        try:
+            value = float(force)
+        except (TypeError, ValueError, OverflowError):
+            value = float("nan")
+        if not (np.isfinite(value) and value > 0):
+            raise InputError("load.force", f"must be a finite number > 0, got {force!r}")
+        return replace(self, problem=replace(self.problem, force=value))
+
+
+def _element_geometry(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """``(volumes, gradients)``; refuses degenerate and inverted simplices."""
+    d = mesh.dim
+    X = mesh.points[mesh.cells]
+    J = element_jacobians(mesh.points, mesh.cells)
+    det = np.linalg.det(J)
+    edges = np.concatenate([X[:, i] - X[:, j] for i in range(d + 1) for j in range(i)], axis=0)
+    h = np.linalg.norm(edges.reshape(-1, mesh.n_elements, d), axis=2).max(axis=0)
+    degenerate = np.abs(det) <= 1e-10 * h**d
+    if np.any(degenerate):
+        bad = np.flatnonzero(degenerate)
+        raise InputError(
+            "mesh", f"{bad.size} degenerate element(s) (zero volume), first: element {bad[0]} with nodes {mesh.cells[bad[0]].tolist()}"
+        )
+    sign = np.sign(det)
+    majority = 1.0 if np.sum(sign > 0) >= np.sum(sign < 0) else -1.0
+    if np.any(sign != majority):
+        bad = np.flatnonzero(sign != majority)
+        raise InputError(
+            "mesh", f"{bad.size} inverted element(s) (orientation opposite to the rest), first: element {bad[0]}"
+        )
+    return np.abs(det) / factorial(d), shape_gradients(J)
+
+
+def element_jacobians(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """``J[e] = [x_1 - x_0, ..., x_d - x_0]`` (columns) of each simplex."""
+    X = points[cells]
+    return np.swapaxes(X[:, 1:] - X[:, :1], 1, 2)
+
+
+def shape_gradients(J: np.ndarray) -> np.ndarray:
+    """Gradients ``(n_el, d+1, d)`` of the P1 shape functions from the Jacobians:
+    the rows of ``J^{-1}`` for phi_1..phi_d and minus their sum for phi_0."""
+    Jinv = np.linalg.inv(J)
+    return np.concatenate([-Jinv.sum(axis=1, keepdims=True), Jinv], axis=1)
+
+
+def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, chunk: int = 1 << 17) -> sp.csr_matrix:
+    """``B`` on the free dofs (rows ``element * k + component``, Mandel), built
+    row by row as CSR.
+
+    ``position`` gives the free-dof number of every dof (-1 where fixed). Each
+    row ``element * k + c`` holds the terms of :data:`_STRAIN_ROWS` at the
+    element's free dofs, so the CSR arrays are written directly, in chunks of
+    elements, without a COO sort or a column slice: at a million tetrahedra
+    this takes a few seconds and about the size of B itself, against 16 s and
+    three copies. Indices are 32-bit while they fit.
+    """
+    d, n = mesh.dim, mesh.n_elements
+    rows = _STRAIN_ROWS[d]
+    k, m = len(rows), d + 1
+    width = max(len(t) for t in rows) * m
+    n_free = int(position.max(initial=-1)) + 1
+    it = np.int32 if max(n_free, n * k * width) < np.iinfo(np.int32).max else np.int64
+    data, indices, counts = [], [], []
+    for s in range(0, n, chunk):
+        cells = mesh.cells[s:s + chunk]
+        g = grads[s:s + chunk]
+        cols = np.full((cells.shape[0], k, width), -1, dtype=it)
+        vals = np.zeros((cells.shape[0], k, width))
+        for c, terms in enumerate(rows):
+            for t, (comp, der, w) in enumerate(terms):
+                cols[:, c, t * m:(t + 1) * m] = position[cells * d + comp]
+                vals[:, c, t * m:(t + 1) * m] = w * g[:, :, der]
+        keep = cols >= 0
+        data.append(vals[keep])
+        indices.append(cols[keep])
+        counts.append(keep.sum(axis=2).ravel())
+    counts = np.concatenate(counts)
+    indptr = np.zeros(counts.size + 1, dtype=it)
+    np.cumsum(counts, out=indptr[1:])
+    B = sp.csr_matrix((np.concatenate(data), np.concatenate(indices), indptr), shape=(n * k, n_free))
+    B.sort_indices()
+    return B
+
+
+def _rigid_motions(points: np.ndarray) -> np.ndarray:
+    """Basis ``(n_nodes * d, r)`` of infinitesimal rigid motions at the nodes."""
+    n, d = points.shape
+    x = points - points.mean(axis=0)
+    modes = []
+    for a in range(d):
+        t = np.zeros((n, d))
+        t[:, a] = 1.0
+        modes.append(t)
+    for a, b in ([(0, 1)] if d == 2 else [(0, 1), (1, 2), (0, 2)]):
+        r = np.zeros((n, d))
+        r[:, a], r[:, b] = -x[:, b], x[:, a]
+        modes.append(r)
+    return np.stack([m.ravel() for m in modes], axis=1)
+
+
+_MOTION_NAMES = {2: ["translation x", "translation y", "rotation in xy"],
+                 3: ["translation x", "translation y", "translation z", "rotation in xy", "rotation in yz", "rotation in xz"]}
+
+
+def _check_no_rigid_motion(mesh: Mesh, fixed_mask: np.ndarray) -> None:
+    """Every connected piece of the mesh must have its rigid motions blocked."""
+    d = mesh.dim
+    e = mesh.cells
+    pairs = np.concatenate([e[:, [i, j]] for i in range(d + 1) for j in range(i)], axis=0)
+    adj = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(mesh.n_nodes,) * 2)
+    n_parts, labels = connected_components(adj, directed=False)
+    for part in range(n_parts):
+        nodes = np.flatnonzero(labels == part)
+        R = _rigid_motions(mesh.points[nodes])
+        mask = fixed_mask.reshape(-1, d)[nodes].ravel()
+        Rf = R[mask]
+        scale = np.linalg.norm(R, axis=0)
+        s = np.linalg.svd(Rf / scale, compute_uv=False) if Rf.size else np.zeros(0)
+        rank = int(np.sum(s > 1e-8 * max(1.0, s.max(initial=0.0))))
+        if rank < R.shape[1]:
+            # name a free motion: the one least touched by the fixed dofs
+            free_norm = np.linalg.norm(Rf / scale, axis=0) if Rf.size else np.zeros(R.shape[1])
+            name = _MOTION_NAMES[d][int(np.argmin(free_norm))]
+            raise InputError(
+                "boundary",
+                f"the fixed displacements leave a rigid motion free ({name}"
+                + (f", mesh part {part}" if n_parts > 1 else "")
+                + "); clamp or fix more of the boundary",
+            )
+
+
+def _flat_bottom_area(mesh: Mesh, tol: float) -> np.ndarray:
+    """Lumped area of the boundary lying in ``x_d = 0`` at each node."""
+    d = mesh.dim
+    facets = _boundary_facets(mesh.cells)
+    on_plane = np.all(np.abs(mesh.points[facets][:, :, -1]) <= tol, axis=1)
+    facets = facets[on_plane]
+    X = mesh.points[facets][:, :, :-1]  # in-plane coordinates
+    if d == 2:
+        meas = np.abs(X[:, 1, 0] - X[:, 0, 0])
+    else:
+        v1, v2 = X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]
+        meas = 0.5 * np.abs(v1[:, 0] * v2[:, 1] - v1[:, 1] * v2[:, 0])
+    area = np.zeros(mesh.n_nodes)
+    np.add.at(area, facets.ravel(), np.repeat(meas / d, d))
+    return area
+
+
+# ----------------------------------------------------------------------------
+# input checks before anything is built (kept apart from the assembly below)
+# ----------------------------------------------------------------------------
+
+
+def check_mesh_arrays(mesh: Mesh) -> None:
+    """A :class:`Mesh` built in Python must be what the operators expect: finite
+    coordinates ``(n, 2 or 3)``, simplices ``(n_el, d+1)`` of valid node indices, and a
+    size whose operators fit in memory (files and generators are checked on the way in;
+    this guards meshes made directly)."""
+    pts, cells = mesh.points, mesh.cells
+    if pts.ndim != 2 or pts.shape[1] not in (2, 3) or cells.ndim != 2 or cells.shape[1] != pts.shape[1] + 1:
+        raise InputError("mesh", f"points must be (n, 2 or 3) and cells (n_el, d + 1), got {pts.shape} and {cells.shape}")
+    if cells.shape[0] == 0:
+        raise InputError("mesh", "the mesh has no elements")
+    check_mesh_size(mesh.dim, mesh.n_nodes, mesh.n_elements, sum(len(g) for g in mesh.groups.values()), "mesh",
+                    "this mesh", "use a coarser mesh")
+    if cells.dtype.kind not in "iu" or cells.min() < 0 or cells.max() >= mesh.n_nodes:
+        raise InputError("mesh", f"cells must be integer node indices in [0, {mesh.n_nodes})")
+    if not np.all(np.isfinite(pts)):
+        raise InputError("mesh", "node coordinates must be finite")
+    for name, facets in mesh.groups.items():
+        facets = np.asarray(facets)
+        if facets.size and (facets.ndim != 2 or facets.shape[1] != mesh.dim or facets.dtype.kind not in "iu"
+                            or facets.min() < 0 or facets.max() >= mesh.n_nodes):
+            raise InputError("mesh", f"group {name!r} must be ({mesh.dim}-node facets) of node indices in "
+                                     f"[0, {mesh.n_nodes})")
+
+
+def _vertical_fixed_message(problem: Problem, contact_nodes: np.ndarray, vertical_fixed: np.ndarray) -> str:
+    """Which groups fix the vertical displacement of contact nodes."""
+    mesh, bnd, d = problem.mesh, problem.boundary, problem.mesh.dim
+    nodes = contact_nodes[vertical_fixed]
+    names = [n for n in list(bnd.clamped) + list(bnd.fix_component.get(d - 1, ()))
+             if np.intersect1d(mesh.group_nodes([n]), nodes).size]
+    return (f"{int(vertical_fixed.sum())} contact node(s) have their vertical displacement fixed (by group(s) "
+            f"{sorted(set(names))}): the contact zone must stay clear of clamped groups and of fix_component on the "
+            "vertical axis")
+
+
+def discretize(problem: Problem) -> Discretization:
+    """Build the operators of (2.1) and refuse inputs that make it ill-posed."""
+    expect(problem, Problem, "problem", "ep.problem_from_dict(data) or ep.load_problem(path)")
+    mesh = problem.mesh
+    d = mesh.dim
+    check_mesh_arrays(mesh)
+    volumes, grads = _element_geometry(mesh)
+
+    bnd = problem.boundary
+    fixed_mask = np.zeros((mesh.n_nodes, d), dtype=bool)
+    fixed_mask[mesh.group_nodes(bnd.clamped)] = True
+    for comp, names in bnd.fix_component.items():
+        fixed_mask[mesh.group_nodes(names), comp] = True
+    fixed_mask = fixed_mask.ravel()
+
+    contact_nodes = mesh.group_nodes(bnd.contact)
+    if contact_nodes.size == 0:
+        raise InputError("boundary.contact", f"the contact zone {list(bnd.contact)} has no nodes")
+    extent = float(np.max(mesh.points.max(axis=0) - mesh.points.min(axis=0)))
+    tol = 1e-9 * extent
+    off_plane = np.abs(mesh.points[contact_nodes, -1]) > tol
+    if np.any(off_plane):
+        raise InputError(
+            "boundary.contact",
+            f"{int(off_plane.sum())} contact node(s) are not in the contact plane x_{d} = 0 "
+            "(the body must sit on x_d = 0 with the rigid body below)",
+        )
+    if np.any(mesh.points[:, -1] < -tol):
+        raise InputError("mesh", f"part of the body lies below the contact plane x_{d} = 0")
+    vertical_fixed = fixed_mask.reshape(-1, d)[contact_nodes, d - 1]
+    if np.any(vertical_fixed):
+        raise InputError("boundary.contact", _vertical_fixed_message(problem, contact_nodes, vertical_fixed))
+    _check_no_rigid_motion(mesh, fixed_mask)
+
+    free = np.flatnonzero(~fixed_mask)
+    fixed = np.flatnonzero(fixed_mask)
+    position = -np.ones(mesh.n_nodes * d, dtype=np.int64)
+    position[free] = np.arange(free.size)
+    B = free_strain_operator(mesh, grads, position)
+    cols = position[contact_nodes * d + d - 1]
+    N = sp.csr_matrix((np.ones(contact_nodes.size), (np.arange(contact_nodes.size), cols)), shape=(contact_nodes.size, free.size))
+
+    psi = problem.obstacle.psi(mesh.points[contact_nodes, :-1], field="obstacle")
+    area = _flat_bottom_area(mesh, tol)[contact_nodes]
+    disc = Discretization(
+        problem=problem,
+        volumes=volumes,
+        B=B,
+        free=free,
+        fixed=fixed,
+        contact_nodes=contact_nodes,
+        N=N,
+        psi=psi,
+        contact_area=area,
+    )
+    check_scales(disc)
+    return disc
+
+
+@dataclass(frozen=True)
+class Units:
+    """Reference magnitudes for solving in O(1) numbers.
+
+    ``stress``: the mean pressure ``F / |Gamma_0|``; ``length``: the mean
+    element size ``mean(|T|)**(1/d)``, so that element volumes are O(1) on
+    average; ``displacement = length * stress / E``, so strains come in units of
+    ``stress / E``; ``force = stress * length**(d-1)``.
+    """
+
+    stress: float
+    length: float
+    displacement: float
+    force: float
+    E: float
+
+
+def reference_units(disc: Discretization) -> Units:
+    """The :class:`Units` of ``disc`` (their definitions are in its docstring)."""
+    m, d = disc.material, disc.dim
+    L = float(disc.volumes.mean() ** (1.0 / d))
+    area = disc.contact_area.sum()
+    S = disc.force / area if area > 0 else m.E * 1e-3
+    return Units(stress=S, length=L, displacement=L * S / m.E, force=S * L ** (d - 1), E=m.E)
+
+
+SCALE_RANGE = (1e-100, 1e100)
+
+
+def check_scales(disc: Discretization) -> None:
+    """Refuse magnitudes no solver can scale: in the units of :class:`Units` (E = 1)
+    the yield stress ``sigma_y / S``, the strain scale ``S / E`` and the obstacle
+    ``psi / displacement`` must lie within ``SCALE_RANGE`` (squares then stay finite
+    doubles). Beyond it (a force of 1e-300 or 1e300, E = 1e300 against a yield stress
+    of 1e3) the scaled data overflow and the solvers return nan."""
+    lo, hi = SCALE_RANGE
+    m = disc.material
+    with np.errstate(all="ignore"):
+        u = reference_units(disc)
+        yield_strain = m.yield_stress / m.E
+        strain = u.stress / m.E
+        psi = float(np.max(np.abs(disc.psi), initial=0.0)) / u.displacement
+    if not lo <= yield_strain <= hi:
+        field = "material.E" if abs(np.log10(m.E)) >= abs(np.log10(m.yield_stress)) else "material.yield_stress"
+        raise InputError(field, f"E = {m.E:g} against yield_stress = {m.yield_stress:g}: their ratio is beyond "
+                                f"[{lo:g}, {hi:g}], which no solver can scale")
+    if not lo <= strain <= hi or not psi <= hi:
+        raise InputError("load.force", f"force = {disc.force:g} gives a mean contact pressure F / |Gamma_0| = "
+                                       f"{u.stress:.3g}, {strain:.3g} times E (and an obstacle {psi:.3g} times the "
+                                       f"displacement scale): beyond [{lo:g}, {hi:g}], which no solver can scale")
+
+
+#: largest obstacle height, in displacement units, the solvers see (see :func:`nondimensionalize`)
+PSI_CAP = 1e9
+
+
+def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
+    """The same discrete problem in the units of :class:`Units` (E becomes 1).
+
+    Solvers may work on the result and map back with ``sigma * stress``,
+    ``u * displacement``, ``contact forces * force``; the certificate is always
+    evaluated on the original problem.
+
+    The obstacle is capped at :data:`PSI_CAP` displacement units: a contact node
+    whose gap is that many times the displacement scale is inactive anyway, and
+    the cap keeps a tiny force (displacements of 1e-15 the obstacle's height)
+    from swamping the solvers' arithmetic. The certificate, on the original
+    problem, would show any penetration the cap allowed.
+    """
+    from dataclasses import replace
+
+    m, d = disc.material, disc.dim
+    units = reference_units(disc)
+    S, L = units.stress, units.length
+    material = Material(1.0, m.nu, m.yield_stress / S, m.hardening / m.E)
+    problem = replace(disc.problem, material=material, force=disc.force / units.force)
+    return (
+        replace(
+            disc,
+            problem=problem,
+            volumes=disc.volumes / L**d,
+            B=(disc.B * L).tocsr(),
+            psi=np.minimum(disc.psi / units.displacement, PSI_CAP),
+            contact_area=disc.contact_area / L ** (d - 1),
+        ),
+        units,
+    )

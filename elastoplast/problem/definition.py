@@ -1,0 +1,517 @@
+"""Problem description: the Python API and the TOML format.
+
+A :class:`Problem` is fully resolved: a mesh, a material, boundary groups, an
+obstacle and a force. :func:`load_problem` reads the TOML format of the README;
+:func:`problem_from_dict` takes the same structure as nested dicts. Every
+complaint about the input is an :class:`InputError` naming the key.
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+import numbers
+import tomllib
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from elastoplast.mesh.checks import as_path, read_bytes
+from elastoplast.errors import InputError
+from elastoplast.fem.material import Material
+from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
+
+AXES = {"x": 0, "y": 1, "z": 2}
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """Named facet groups: ``clamped`` (u = 0), ``contact`` (the zone Γ0), and
+    ``fix_component[axis] -> groups`` fixing one component (symmetry planes)."""
+
+    clamped: tuple[str, ...]
+    contact: tuple[str, ...]
+    fix_component: Mapping[int, tuple[str, ...]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "clamped", tuple(self.clamped))
+        object.__setattr__(self, "contact", tuple(self.contact))
+        object.__setattr__(
+            self, "fix_component", MappingProxyType({int(k): tuple(v) for k, v in dict(self.fix_component).items()})
+        )
+
+
+_SAFE_FUNCS = {
+    name: getattr(np, name)
+    for name in ("sqrt", "exp", "log", "sin", "cos", "tan", "arctan", "arcsin", "arccos",
+                 "sinh", "cosh", "tanh", "abs", "minimum", "maximum", "where", "pi", "hypot")
+}
+_SAFE_FUNCS["e"] = np.e
+_ARITY = {name: 1 for name in _SAFE_FUNCS if callable(_SAFE_FUNCS[name])}
+_ARITY.update(minimum=2, maximum=2, hypot=2, where=3)
+_OPERATORS = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow, ast.Mod, ast.FloorDiv, ast.UAdd, ast.USub,
+              ast.Lt, ast.LtE, ast.Gt, ast.GtE, ast.Eq, ast.NotEq)
+MAX_EXPRESSION_CHARS = 2000
+MAX_EXPRESSION_NODES = 500
+
+
+class _FloatConstants(ast.NodeTransformer):
+    """Replace every number by a name bound to a NumPy float64.
+
+    Python integers are exact and unbounded: ``9**9**9**9`` or ``10**10**8`` would run
+    for minutes and take gigabytes before any check. NumPy floats overflow to ``inf``
+    at once (refused afterwards as not finite), so every evaluation costs a few
+    operations per node and node of the expression.
+    """
+
+    def __init__(self) -> None:
+        self.values: dict[str, np.float64] = {}
+
+    def visit_Constant(self, node: ast.Constant) -> ast.AST:
+        try:
+            value = np.float64(float(node.value))
+        except OverflowError:  # an integer literal beyond the float range
+            value = np.float64(np.inf)
+        name = f"_c{len(self.values)}"
+        self.values[name] = value
+        return ast.copy_location(ast.Name(id=name, ctx=ast.Load()), node)
+
+
+def _compile_expression(expr: str, dim: int, fieldname: str):
+    """Compile a formula in x (and y in 3D) allowing only arithmetic and numpy maths.
+
+    Returns ``(code, constants)``: evaluate with ``eval(code, {"__builtins__": {}},
+    {**_SAFE_FUNCS, **constants, "x": ..., "y": ...})``. The cost is bounded: at most
+    ``MAX_EXPRESSION_CHARS`` characters and ``MAX_EXPRESSION_NODES`` syntax nodes; only
+    numbers (made float64), the variables, ``+ - * / // % **``, comparisons, ``a if c
+    else b`` and calls of the functions of ``_SAFE_FUNCS`` with their own number of
+    arguments (no keywords): every intermediate value is a float or an array shaped
+    like ``x``.
+    """
+    variables = {"x", "y"} if dim == 3 else {"x"}
+    if len(expr) > MAX_EXPRESSION_CHARS:
+        raise InputError(fieldname, f"the formula has {len(expr)} characters (at most {MAX_EXPRESSION_CHARS})")
+    try:
+        tree = ast.parse(expr.strip(), mode="eval")
+    except SyntaxError as exc:
+        raise InputError(fieldname, f"cannot parse {expr!r}: {exc.msg}") from None
+    except (ValueError, RecursionError, MemoryError) as exc:  # NUL bytes; nesting too deep
+        raise InputError(fieldname, f"cannot parse {expr!r}: {type(exc).__name__}") from None
+    allowed = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Call, ast.Name, ast.Load, ast.Constant,
+               ast.Compare, ast.IfExp) + _OPERATORS
+    nodes = list(ast.walk(tree))
+    if len(nodes) > MAX_EXPRESSION_NODES:
+        raise InputError(fieldname, f"the formula has {len(nodes)} syntax nodes (at most {MAX_EXPRESSION_NODES})")
+    for node in nodes:
+        if not isinstance(node, allowed):
+            raise InputError(fieldname, f"{type(node).__name__} is not allowed in {expr!r}")
+        if isinstance(node, ast.Name) and node.id not in variables and node.id not in _SAFE_FUNCS:
+            raise InputError(fieldname, f"unknown name {node.id!r} in {expr!r} (variables: {sorted(variables)})")
+        if isinstance(node, ast.Constant) and (isinstance(node.value, bool) or not isinstance(node.value, (int, float))):
+            raise InputError(fieldname, f"only real numbers may appear as constants in {expr!r}, got {node.value!r}")
+        if isinstance(node, ast.Call):
+            name = node.func.id if isinstance(node.func, ast.Name) else None
+            if name not in _ARITY or node.keywords or len(node.args) != _ARITY[name]:
+                raise InputError(fieldname, f"calls must be one of {sorted(_ARITY)} with their own number of "
+                                            f"arguments (where: 3; minimum, maximum, hypot: 2; others: 1) in {expr!r}")
+    constants = _FloatConstants()
+    tree = ast.fix_missing_locations(constants.visit(tree))
+    try:
+        return compile(tree, "<obstacle expression>", "eval"), constants.values
+    except (ValueError, RecursionError, MemoryError) as exc:
+        raise InputError(fieldname, f"cannot compile {expr!r}: {type(exc).__name__}") from None
+
+
+MAX_PSI_OVER_SPAN = 1e6
+
+
+def _check_psi(psi: np.ndarray, xp: np.ndarray, what: str, field: str, centre=None) -> np.ndarray:
+    """The obstacle at the contact nodes must be finite, >= 0 (docs/math.md: the
+    rigid body lies below x_d = 0 and touches the body where psi = 0) and not steeper
+    than ``MAX_PSI_OVER_SPAN`` times the zone. A psi that does not reach 0 on the zone
+    only shifts U by the gap, which is said in a warning: for a shape with a ``centre``
+    (psi = 0 there) when the centre lies outside the zone's bounding box, for a formula
+    when its minimum at the nodes exceeds half its range over them."""
+    if not np.all(np.isfinite(psi)):
+        bad = np.flatnonzero(~np.isfinite(psi))[0]
+        raise InputError(field, f"{what} is not finite at every contact node (e.g. {psi[bad]} at x' = "
+                                f"{xp[bad].tolist()})")
+    if psi.size == 0:
+        return psi
+    span = float(np.max(xp.max(axis=0) - xp.min(axis=0))) if xp.size else 0.0
+    scale = max(span, float(np.abs(psi).max()))
+    low, high = float(psi.min()), float(psi.max())
+    if low < -1e-12 * scale:
+        i = int(np.argmin(psi))
+        raise InputError(field, f"{what} is negative at contact nodes (min {low:.4g} at x' = {xp[i].tolist()}): the "
+                                "rigid body would start inside the body; psi >= 0, with 0 where it first touches")
+    if high > MAX_PSI_OVER_SPAN * span:
+        i = int(np.argmax(psi))
+        raise InputError(field, f"{what} rises to {high:.4g} at x' = {xp[i].tolist()}, more than {MAX_PSI_OVER_SPAN:g} "
+                                f"times the size {span:.4g} of the contact zone: a surface this steep touches one node "
+                                "and its values elsewhere only upset the solvers")
+    if centre is not None:
+        gap = bool(np.any((np.asarray(centre) < xp.min(axis=0)) | (np.asarray(centre) > xp.max(axis=0))))
+    else:
+        gap = low > 1e-12 * scale and low > 0.5 * (high - low)
+    if gap:
+        named = field if centre is None else field.rsplit(".", 1)[0] + ".center"
+        warnings.warn(f"{named}: the obstacle does not touch the body before loading (min psi = {low:.4g} > 0 at "
+                      "the contact nodes): U includes this initial gap", stacklevel=3)
+    return np.maximum(psi, 0.0)
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """Rigid body surface ``x_d = -psi(x')`` (docs/math.md).
+
+    ``shape``: ``sphere`` (3D) / ``cylinder`` (2D): ``R - sqrt(R^2 - |x'-c|^2)``;
+    ``paraboloid``: ``|x'-c|^2 / (2R)``; ``flat``: 0; ``expression``: a formula
+    in ``x`` (and ``y`` in 3D).
+    """
+
+    shape: str
+    dim: int
+    radius: float | None = None
+    center: tuple[float, ...] = ()
+    expression: str | None = None
+
+    def psi(self, xp: np.ndarray, field: str = "obstacle") -> np.ndarray:
+        """Evaluate psi at in-plane points ``xp`` (n, d-1); refuses points outside its domain."""
+        with np.errstate(all="ignore"):  # overflow to inf is refused by _check_psi
+            r2 = np.sum((xp - np.asarray(self.center)) ** 2, axis=1)
+            if self.shape in ("sphere", "cylinder"):
+                R = self.radius
+                if np.sqrt(r2.max(initial=0.0)) >= R:
+                    raise InputError(
+                        f"{field}.radius",
+                        f"radius {R:g} is smaller than the contact zone (which reaches {np.sqrt(r2.max()):g} "
+                        f"from the centre {list(self.center)})",
+                    )
+                # = R - sqrt(R^2 - r^2), without cancellation
+                return _check_psi(r2 / (R + np.sqrt(R * R - r2)), xp, f"the {self.shape}", f"{field}.radius",
+                                  self.center)
+            if self.shape == "paraboloid":
+                return _check_psi(r2 / (2.0 * self.radius), xp, "the paraboloid", f"{field}.radius", self.center)
+        if self.shape == "flat":
+            return np.zeros(xp.shape[0])
+        code, constants = _compile_expression(self.expression, self.dim, f"{field}.expression")
+        env = dict(_SAFE_FUNCS, **constants, x=xp[:, 0].copy())
+        if self.dim == 3:
+            env["y"] = xp[:, 1].copy()
+        try:
+            with np.errstate(all="ignore"):
+                val = np.broadcast_to(np.asarray(eval(code, {"__builtins__": {}}, env), dtype=float), (xp.shape[0],))
+        except Exception as exc:
+            hint = ("; conditions on x need where(condition, a, b), not 'a if condition else b' or chained "
+                    "comparisons" if "truth value" in str(exc) else "")
+            raise InputError(f"{field}.expression", f"evaluating {self.expression!r} failed: {exc}{hint}") from None
+        return _check_psi(np.array(val), xp, repr(self.expression), f"{field}.expression")
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A complete elasto-plastic contact problem (docs/math.md)."""
+
+    mesh: Mesh
+    material: Material
+    boundary: Boundary
+    obstacle: Obstacle
+    force: float
+
+    @property
+    def dim(self) -> int:
+        return self.mesh.dim
+
+
+# ----------------------------------------------------------------------------
+# validation helpers
+# ----------------------------------------------------------------------------
+
+
+def _finite(val: Any) -> float | None:
+    """``val`` as a finite float (``-0.0`` made ``0.0``), or None for anything else:
+    booleans, strings, tables, lists, ``nan``, ``inf`` and integers beyond the float range."""
+    if isinstance(val, (bool, np.bool_)) or not isinstance(val, numbers.Real):
+        return None
+    try:
+        f = float(val)
+    except (OverflowError, ValueError, TypeError):
+        return None
+    return f + 0.0 if math.isfinite(f) else None
+
+
+def _short(val: Any) -> str:
+    """``repr`` of a user value, cut to one readable line."""
+    text = repr(val)
+    return text if len(text) <= 80 else text[:60] + f"... ({len(text)} characters)"
+
+
+def _number(section: Mapping, key: str, prefix: str, *, default: Any = None) -> float:
+    if key not in section:
+        if default is None:
+            raise InputError(f"{prefix}.{key}", "is required")
+        return default
+    val = _finite(section[key])
+    if val is None:
+        raise InputError(f"{prefix}.{key}", f"must be a finite number, got {_short(section[key])}")
+    return val
+
+
+def _names(section: Mapping, key: str, prefix: str, default: Sequence[str] | None = None) -> tuple[str, ...]:
+    if key not in section:
+        if default is None:
+            raise InputError(f"{prefix}.{key}", "is required")
+        return tuple(default)
+    val = section[key]
+    if isinstance(val, str):
+        val = [val]
+    if not isinstance(val, (list, tuple)) or not all(isinstance(v, str) for v in val):
+        raise InputError(f"{prefix}.{key}", f"must be a list of group names, got {val!r}")
+    return tuple(val)
+
+
+def _only(section: Any, allowed: set[str], prefix: str) -> Mapping:
+    if not isinstance(section, Mapping):
+        raise InputError(prefix, f"must be a table, got {section!r}")
+    unknown = sorted(set(section) - allowed, key=str)
+    if unknown:
+        raise InputError(f"{prefix}.{unknown[0]}", f"unknown key (allowed: {sorted(allowed)})")
+    return section
+
+
+def make_material(E: float, nu: float, yield_stress: float, hardening: float, *, prefix: str = "material") -> Material:
+    """A validated :class:`Material`; warns for perfect plasticity (H = 0)."""
+    if not E > 0:
+        raise InputError(f"{prefix}.E", f"must be > 0, got {E!r}")
+    if not -1.0 < nu < 0.5:
+        raise InputError(f"{prefix}.nu", f"must lie in (-1, 0.5), got {nu!r}")
+    if not yield_stress > 0:
+        raise InputError(f"{prefix}.yield_stress", f"must be > 0, got {yield_stress!r}")
+    if not hardening >= 0:
+        raise InputError(f"{prefix}.hardening", f"must be >= 0, got {hardening!r}")
+    if nu >= 0.49:
+        warnings.warn(f"{prefix}.nu = {nu:g} is nearly incompressible (bulk / shear modulus "
+                      f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.3g}): P1 elements lock elastically and the solvers lose "
+                      "accuracy", stacklevel=2)
+    if hardening == 0:
+        warnings.warn(
+            f"{prefix}.hardening = 0 is perfect plasticity: stresses are unique up to the limit load but "
+            "displacements may not be, and a force above the limit load has no solution; it needs a mesh "
+            "whose P1 elements do not lock (in 2D pattern = \"crossed\"; P1 tetrahedra lock: in 3D use "
+            "hardening > 0), and meshes that lock are refused by the solvers; 'elastoplast limit' brackets "
+            "the limit load on any mesh",
+            stacklevel=2,
+        )
+    return Material(float(E) + 0.0, float(nu) + 0.0, float(yield_stress) + 0.0, float(hardening) + 0.0)
+
+
+def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle") -> Obstacle:
+    _only(section, {"shape", "radius", "center", "expression"}, prefix)
+    shape = section.get("shape")
+    shapes = {"sphere", "paraboloid", "cylinder", "flat", "expression"}
+    if not isinstance(shape, str) or shape not in shapes:
+        raise InputError(f"{prefix}.shape", f"must be one of {sorted(shapes)}, got {_short(shape)}")
+    if shape == "cylinder" and dim == 3:
+        raise InputError(f"{prefix}.shape", "'cylinder' is the 2D (plane strain) obstacle; use 'sphere' or 'paraboloid' in 3D")
+    if shape == "sphere" and dim == 2:
+        shape = "cylinder"  # the same formula with d - 1 = 1
+    center = _float_list(section, "center", prefix, dim - 1, default=[0.0] * (dim - 1))
+    radius = None
+    if shape in ("sphere", "cylinder", "paraboloid"):
+        radius = _number(section, "radius", prefix)
+        if not radius > 0:
+            raise InputError(f"{prefix}.radius", f"must be > 0, got {radius!r}")
+    expression = None
+    if shape == "expression":
+        expression = section.get("expression")
+        if not isinstance(expression, str):
+            raise InputError(f"{prefix}.expression", "a formula string is required for shape = 'expression'")
+        _compile_expression(expression, dim, f"{prefix}.expression")
+    return Obstacle(shape=shape, dim=dim, radius=radius, center=tuple(center), expression=expression)
+
+
+def _int_list(section: Mapping, key: str, prefix: str, n: int) -> list[int]:
+    val = section.get(key)
+    if (not isinstance(val, (list, tuple)) or len(val) != n
+            or not all(isinstance(v, numbers.Integral) and not isinstance(v, (bool, np.bool_)) and v >= 1
+                       for v in val)):
+        raise InputError(f"{prefix}.{key}", f"must be a list of {n} positive integers, got {_short(val)}")
+    return [int(v) for v in val]
+
+
+def _float_list(section: Mapping, key: str, prefix: str, n: int, default=None) -> list[float] | None:
+    if key not in section:
+        return default
+    val = section[key]
+    floats = [_finite(v) for v in val] if isinstance(val, (list, tuple)) else []
+    if len(floats) != n or any(v is None for v in floats):
+        raise InputError(f"{prefix}.{key}", f"must be a list of {n} finite number(s), got {_short(val)}")
+    return floats
+
+
+GENERATORS = {"rectangle": 2, "box": 3}
+
+
+def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh") -> Mesh:
+    """Read ``file`` or run the ``generator`` ('rectangle' 2D, 'box' 3D)."""
+    _only(section, {"file", "generator", "size", "divisions", "origin", "grading", "contact_radius", "contact_center",
+                    "pattern"}, prefix)
+    if ("file" in section) == ("generator" in section):
+        raise InputError(prefix, "give exactly one of 'file' or 'generator'")
+    if "file" in section:
+        extra = sorted(set(section) - {"file"})
+        if extra:
+            raise InputError(f"{prefix}.{extra[0]}", "only applies to a built-in generator, not to a mesh file")
+        if not isinstance(section["file"], str):
+            raise InputError(f"{prefix}.file", f"must be a path, got {section['file']!r}")
+        path = Path(section["file"])
+        if not path.is_absolute():
+            path = base_dir / path
+        return read_mesh(path)
+    gen = section["generator"]
+    if not isinstance(gen, str) or gen not in GENERATORS:
+        raise InputError(f"{prefix}.generator", f"must be one of {sorted(GENERATORS)}, got {_short(gen)}")
+    dim = GENERATORS[gen]
+    size = _float_list(section, "size", prefix, dim)
+    if size is None or min(size) <= 0:
+        raise InputError(f"{prefix}.size", f"{dim} positive lengths are required, got {_short(section.get('size'))}")
+    divisions = _int_list(section, "divisions", prefix, dim)
+    grading = _number(section, "grading", prefix, default=1.0)
+    if not grading >= 1.0:
+        raise InputError(f"{prefix}.grading", f"must be >= 1 (1 is uniform), got {grading!r}")
+    radius = _number(section, "contact_radius", prefix)
+    if not radius > 0:
+        raise InputError(f"{prefix}.contact_radius", f"must be > 0, got {radius!r}")
+    origin = _float_list(section, "origin", prefix, dim)
+    center = _float_list(section, "contact_center", prefix, dim - 1)
+    pattern = section.get("pattern", "diagonal")
+    if not isinstance(pattern, str) or pattern not in ("diagonal", "crossed") or (pattern == "crossed" and dim == 3):
+        raise InputError(f"{prefix}.pattern", f"must be 'diagonal' or (2D only) 'crossed', got {_short(pattern)}")
+    if origin is not None and origin[-1] != 0.0:
+        raise InputError(f"{prefix}.origin", "the body must sit on the contact plane: the last coordinate must be 0")
+    if center is not None:
+        lower = origin[:-1] if origin is not None else [-s / 2.0 for s in size[:-1]]
+        if any(not lo <= c <= lo + s for c, lo, s in zip(center, lower, size)):
+            raise InputError(f"{prefix}.contact_center", f"{center} lies outside the bottom face "
+                                                         f"{[[lo, lo + s] for lo, s in zip(lower, size)]}")
+    return structured_mesh(size, divisions, radius, origin=origin, contact_center=center, grading=grading,
+                           pattern=pattern)
+
+
+def default_boundary(mesh: Mesh) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The paper's setting on a generated block: every face but the bottom clamped."""
+    clamped = tuple(n for n in mesh.groups if n not in ("bottom", "contact"))
+    return clamped, ("contact",)
+
+
+def make_boundary(section: Mapping, mesh: Mesh, generated: bool, prefix: str = "boundary") -> Boundary:
+    _only(section, {"clamped", "contact", "fix_component"}, prefix)
+    default_clamped, default_contact = default_boundary(mesh) if generated else (None, None)
+    fix_section = _only(section.get("fix_component", {}), set(AXES), f"{prefix}.fix_component")
+    clamped = _names(section, "clamped", prefix, default_clamped)
+    contact = _names(section, "contact", prefix, default_contact)
+    fix = {}
+    for axis, names in fix_section.items():
+        if AXES[axis] >= mesh.dim:
+            raise InputError(f"{prefix}.fix_component.{axis}", f"a {mesh.dim}D mesh has no {axis} component")
+        fix[AXES[axis]] = _names(fix_section, axis, f"{prefix}.fix_component")
+    for key, names in [("clamped", clamped), ("contact", contact)] + [
+        (f"fix_component.{a}", fix_section.get(a, ())) for a in fix_section
+    ]:
+        if isinstance(names, str):
+            names = [names]
+        for name in names:
+            if name not in mesh.groups:
+                raise InputError(f"{prefix}.{key}", f"unknown group {name!r} (the mesh has {sorted(mesh.groups)})")
+    if not contact:
+        raise InputError(f"{prefix}.contact", "the contact zone is empty: name at least one group")
+    return Boundary(clamped=clamped, contact=contact, fix_component=fix)
+
+
+def check_generated_contact_zone(mesh: Mesh, boundary: Boundary) -> None:
+    """The generator's ``contact`` group (the bottom within ``contact_radius`` of
+    ``contact_center``) must hold facets and keep clear of the vertically fixed sides:
+    both are settings of ``mesh.contact_radius`` (and ``contact_center``), which the
+    user wrote, rather than of ``boundary.contact``, which a generated problem need not
+    mention."""
+    if "contact" not in boundary.contact:
+        return
+    if len(mesh.groups["contact"]) == 0:
+        raise InputError("mesh.contact_radius", "no bottom facet lies within contact_radius of contact_center: the "
+                                                "contact zone must cover at least one facet of the mesh")
+    contact = mesh.group_nodes(["contact"])
+    vertical = list(boundary.clamped) + list(boundary.fix_component.get(mesh.dim - 1, ()))
+    touched = [name for name in vertical if np.intersect1d(mesh.group_nodes([name]), contact).size]
+    if touched:
+        raise InputError("mesh.contact_radius", f"the contact zone reaches the side(s) {touched}, where the vertical "
+                                                "displacement is fixed: keep contact_radius (around contact_center) "
+                                                "inside the bottom face")
+
+
+SECTIONS = {"mesh", "material", "boundary", "obstacle", "load", "solver"}
+
+
+def problem_from_dict(data: Mapping, base_dir: str | Path = ".") -> Problem:
+    """Build a :class:`Problem` from the nested structure of the TOML format.
+
+    The optional ``[solver]`` table is not part of the problem; it is ignored here
+    and read by :func:`elastoplast.solvers.registry.solver_settings`.
+    """
+    _only(data, SECTIONS, "problem")
+    for name in ("mesh", "material", "obstacle", "load"):
+        if name not in data:
+            raise InputError(name, "section is required")
+    mesh = make_mesh(data["mesh"], Path(base_dir))
+    mat = _only(data["material"], {"E", "nu", "yield_stress", "hardening"}, "material")
+    material = make_material(*(_number(mat, k, "material") for k in ("E", "nu", "yield_stress", "hardening")))
+    boundary = make_boundary(data.get("boundary", {}), mesh, generated="generator" in data["mesh"])
+    if "generator" in data["mesh"]:
+        check_generated_contact_zone(mesh, boundary)
+    obstacle = make_obstacle(data["obstacle"], mesh.dim)
+    load = _only(data["load"], {"force"}, "load")
+    force = _number(load, "force", "load")
+    if not force > 0:
+        raise InputError("load.force", f"must be > 0, got {force!r}")
+    return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle, force=force)
+
+
+MAX_PROBLEM_BYTES = 16 * 2**20  # a problem file is a few hundred bytes
+
+
+def read_toml(path: str | Path, field: str = "problem", what: str = "problem file") -> dict:
+    """Parse a TOML file; every way it can fail is an :class:`InputError` naming ``field``.
+
+    Refused with one line: a missing path, a directory or device, an unreadable or
+    empty file, more than ``MAX_PROBLEM_BYTES``, text that is not UTF-8 (a UTF-8 byte
+    order mark is skipped), invalid TOML, nesting too deep for the parser, a path
+    that is not a string or path.
+    """
+    path = as_path(path, field, what)
+    raw = read_bytes(path, field, what, MAX_PROBLEM_BYTES)
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        raise InputError(field, f"{path} is UTF-16 text; TOML files are UTF-8 (save it as UTF-8)")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(field, f"{path} is not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}): "
+                                "TOML files are UTF-8") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(field, f"{path} is not valid TOML: {exc}") from None
+    except (RecursionError, MemoryError) as exc:
+        raise InputError(field, f"{path} is not valid TOML: nested too deeply ({type(exc).__name__})") from None
+    if not data:
+        raise InputError(field, f"{path} holds no settings (only comments or blank lines)")
+    return data
+
+
+def load_problem(path: str | Path) -> Problem:
+    """Read a problem TOML file; relative mesh paths are relative to it."""
+    path = as_path(path, "problem", "problem file")
+    return problem_from_dict(read_toml(path), base_dir=path.parent)

@@ -1,0 +1,135 @@
+"""The method registry: one name per solver, its options, and the one way in.
+
+A method is a :class:`Method`: a function ``run(disc, options) -> Solution`` and
+its options class (a :class:`~elastoplast.problem.options.SolverOptions`). Every entry
+point builds options through :func:`method_options`, so a command-line flag, a
+``[solver]`` table, a campaign axis and ``solve(disc, method, **options)`` are
+checked alike: an unknown option, or one the method does not have (``rho`` for
+``newton``), or a value out of range is an
+:class:`~elastoplast.errors.InputError` naming it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+from elastoplast.solvers.accelerated import FastOptions, solve_accelerated
+from elastoplast.mesh.checks import check_perfect_plasticity
+from elastoplast.solvers.conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
+from elastoplast.fem.discretize import Discretization
+from elastoplast.errors import InputError, expect
+from elastoplast.solvers.newton import NewtonOptions, solve_newton
+from elastoplast.problem.options import SolverOptions
+from elastoplast.certificate.solution import Solution
+from elastoplast.solvers.uzawa import UzawaOptions, check_rho, solve_uzawa
+
+
+@dataclass(frozen=True)
+class Method:
+    """A registered solver: ``run(disc, options)`` with ``options`` an instance of ``options``."""
+
+    name: str
+    run: Callable[[Discretization, SolverOptions], Solution]
+    options: type[SolverOptions]
+    summary: str
+    #: checks of the options that depend on the problem (e.g. Uzawa's step against the material)
+    check: Callable[[Discretization, SolverOptions], None] | None = None
+
+
+def _check_uzawa(disc: Discretization, options: SolverOptions) -> None:
+    if options.rho is not None:
+        check_rho(options.rho, disc.material)
+
+
+METHODS: dict[str, Method] = {m.name: m for m in (
+    Method("conic", solve_conic, ConicOptions, "stress form (S) assembled for Clarabel, Newton-polished"),
+    Method("conic-cvxpy", solve_conic_cvxpy, ConicOptions, "the same model written in CVXPY"),
+    Method("conic-displacement", solve_conic_displacement, ConicOptions, "displacement form (D) in CVXPY"),
+    Method("uzawa", solve_uzawa, UzawaOptions, "the paper's Uzawa iteration", _check_uzawa),
+    Method("uzawa-fast", solve_accelerated, FastOptions, "FISTA with restart (or ALG2) on Uzawa's steps"),
+    Method("newton", solve_newton, NewtonOptions, "projected semismooth Newton on (D)"),
+)}
+
+DEFAULT_METHOD = "conic"
+
+
+#: the conic methods factor the KKT matrix of an interior point; beyond these sizes
+#: (elements by dimension) they cannot finish on a machine like the one the package is
+#: developed on (2 cores, 24 GB, shared). Measured in benchmarks/scale (REPORT.md,
+#: "Conic reference"): 3D 10 s, 34 s, 99 s wall and 0.23, 0.42, 0.90 GB at 12k, 24k,
+#: 53k tetrahedra, time ~ n^1.56 and memory ~ n^1.13, extrapolated to 10 minutes at
+#: about 167k and to 6 GB at about 300k; 2D (cylinder_2d) 1.6 s and 11 s at 6.4k
+#: and 25.6k triangles, ~ n^1.36, 10 minutes at about 500k. The limits keep a margin
+#: below those extrapolations; beyond them newton and uzawa run on the iterative path.
+CONIC_MAX_ELEMENTS = {2: 400_000, 3: 150_000}
+
+
+#: a mean contact pressure above this many Young's moduli has no small-strain meaning
+#: and takes the arithmetic toward overflow
+MAX_PRESSURE_OVER_E = 1e3
+
+
+def check_solvable(disc: Discretization, method: str, options: SolverOptions | None = None) -> None:
+    """Refuse, before any work, a problem ``method`` cannot answer faithfully
+    (with ``options``, also options that do not suit the problem): perfect
+    plasticity on a mesh that locks, an absurd force, a mesh too large for the
+    conic reference."""
+    check_perfect_plasticity(disc)
+    area = float(disc.contact_area.sum())
+    if area > 0 and disc.force / area > MAX_PRESSURE_OVER_E * disc.material.E:
+        raise InputError("load.force", f"{disc.force:g} over the contact zone's area {area:g} is a mean pressure of "
+                                       f"{disc.force / area:.3g}, above {MAX_PRESSURE_OVER_E:g} E: far outside small "
+                                       "strains")
+    limit = CONIC_MAX_ELEMENTS[disc.dim]
+    if method.startswith("conic") and disc.n_elements > limit:
+        fast = [m for m in METHODS if not m.startswith("conic")]
+        raise InputError("method", f"{disc.n_elements:,} elements is beyond what the conic reference can finish "
+                                   f"here (at most {limit:,} in {disc.dim}D, measured: benchmarks/scale); "
+                                   f"use one of {fast}")
+    m = get_method(method)
+    if options is not None and m.check is not None:
+        m.check(disc, options)
+
+
+def get_method(name: Any, field: str = "method") -> Method:
+    """The registered method ``name``, or an InputError naming ``field``."""
+    if not isinstance(name, str) or name not in METHODS:
+        raise InputError(field, f"unknown method {name!r} (choose from {sorted(METHODS)})")
+    return METHODS[name]
+
+
+def method_options(method: str, values: Mapping[str, Any] | SolverOptions | None = None, *,
+                   prefix: str = "") -> SolverOptions:
+    """Checked options of ``method`` from a mapping (or an options object of its class)."""
+    m = get_method(method, f"{prefix}method" if prefix else "method")
+    if isinstance(values, SolverOptions):
+        if not isinstance(values, m.options):
+            raise InputError(f"{prefix}options", f"method {method!r} takes {m.options.__name__}, "
+                                                 f"got {type(values).__name__}")
+        return values
+    return m.options.build(values, method=method, prefix=prefix)
+
+
+def solver_settings(section: Mapping[str, Any], prefix: str = "solver") -> tuple[str, dict[str, Any]]:
+    """``(method, options)`` from a ``[solver]`` table: the method and the
+    options given for it, checked (errors name ``prefix.key``)."""
+    if not isinstance(section, Mapping):
+        raise InputError(prefix, f"must be a table, got {section!r}")
+    values = dict(section)
+    method = values.pop("method", DEFAULT_METHOD)
+    opts = method_options(method, values, prefix=f"{prefix}.")
+    return method, {k: getattr(opts, k) for k in values}
+
+
+def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOptions | None = None,
+          **values: Any) -> Solution:
+    """Solve (2.1) by ``method`` (a key of :data:`METHODS`), with options given
+    either as an options object or as keywords (not both)."""
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    if options is not None and values:
+        raise InputError("options", "give an options object or keyword options, not both")
+    m = get_method(method)
+    opts = method_options(method, options if options is not None else values)
+    check_solvable(disc, m.name, opts)
+    return m.run(disc, opts)

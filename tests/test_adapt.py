@@ -13,6 +13,7 @@ import pytest
 import elastoplast as ep
 import elastoplast.adapt.loop as ad
 from elastoplast.adapt.loop import AdaptOptions, Step, adapt, uniform
+from elastoplast.mesh.refinement import dorfler_mark, refine
 
 from conftest import cylinder_dict, sphere_quarter_dict
 
@@ -33,17 +34,54 @@ def row(n: int, gap: float = 1.0, seconds: float = 1.0, lower: float = 0.0) -> S
 # ---------------------------------------------------------------------------
 
 
-def test_element_budget_is_filled_not_overrun(coarse_cylinder):
-    """With a budget the loop lowers θ so that the last mesh fits it: no mesh above
-    the budget, and the last refinement either used θ or a smaller one."""
-    budget = 400
-    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", max_elements=budget))
+def test_element_budget_is_filled_not_overrun(coarse_cylinder, monkeypatch):
+    """With a budget the loop lowers θ so that the next mesh fits it, and only then:
+    no mesh above the budget; every marked set is Dörfler's for the θ used (the
+    smallest set of largest indicators reaching θ of the total); θ = 0.5 is kept
+    when its mesh fits, and lowered only when it would overrun, to the largest θ
+    whose mesh fits (a θ one bisection step larger marks more and overruns); the
+    loop stops when even θ = 0.5 asks for more than the budget."""
+    budget, theta = 300, 0.5  # measured: θ = 0.5 at 100 and 119 elements, then 0.449 gives 298
+    calls = []
+    next_mesh = ad._next_mesh
+
+    def recorded(mesh, state, eta, asked, allowed, adaptive):
+        out = next_mesh(mesh, state, eta, asked, allowed, adaptive)
+        calls.append((mesh, state, np.array(eta), asked, allowed, out))
+        return out
+
+    monkeypatch.setattr(ad, "_next_mesh", recorded)
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, theta=theta, bracket="never", max_elements=budget))
     assert "max_elements" in run.reason, run.reason
     sizes = [s.n_elements for s in run.steps]
     assert max(sizes) <= budget and sizes == sorted(sizes)
-    assert all(s.theta <= 0.5 for s in run.steps[:-1])
-    # the loop stopped because no mesh of MIN_GROWTH times the last one fits
-    assert sizes[-1] * ad.MIN_GROWTH > budget or any(s.theta < 0.5 for s in run.steps[:-1])
+    assert len(calls) == len(run.steps) >= 2
+
+    def size(mesh, state, marked):
+        return refine(mesh, marked, state)[0].n_elements
+
+    lowered = 0
+    for (mesh, state, eta, asked, allowed, (nxt, wanted)), step, after in zip(calls[:-1], run.steps, sizes[1:]):
+        assert asked == theta and allowed == budget
+        new, _, marked, used = nxt
+        assert new.n_elements == after <= budget
+        assert step.theta == used and step.marked == marked.sum() > 0
+        np.testing.assert_array_equal(marked, dorfler_mark(eta, used))
+        total, smallest = eta.sum(), eta[marked].min()
+        assert eta[marked].sum() >= used * total > eta[eta > smallest].sum()
+        assert np.all(eta[~marked] < smallest)
+        if used == theta:
+            assert wanted == after
+            continue
+        lowered += 1
+        assert 0.0 < used < theta and wanted > budget
+        assert size(mesh, state, dorfler_mark(eta, theta)) == wanted
+        larger = dorfler_mark(eta, used + theta / 2**ad.FIT_STEPS)
+        assert larger.sum() > marked.sum() and size(mesh, state, larger) > budget
+    # the last mesh: θ = 0.5 overruns the budget and no smaller θ grows the mesh enough
+    mesh, state, eta, _, _, (nxt, wanted) = calls[-1]
+    assert nxt is None and wanted > budget
+    assert lowered >= 1
 
 
 def test_stops_at_the_lower_bounds_size_limit(coarse_cylinder):

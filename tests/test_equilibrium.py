@@ -30,8 +30,9 @@ import elastoplast as ep
 from elastoplast.fem.material import n_components
 from elastoplast.solvers.conic import deviatoric_basis
 from elastoplast.bounds.lower import (CERTIFY_TOL, LowerBoundOptions, _clarabel, _field, _repaired_field, _setup,
-    certify_static, facet_measure, facet_topology, lower_bound_program, mass_matrix, outward_normals, psi_weights,
-    repair_static, solve_lower_bound, static_limit_load, traction_operator)
+    certify_static, lower_bound_program, mass_matrix, psi_weights, repair_static, solve_lower_bound,
+    static_limit_load, traction_operator)
+from elastoplast.mesh.topology import facet_measure, facet_topology, outward_normals
 from elastoplast.fem.discretize import _element_geometry
 from elastoplast.mesh.base import _boundary_facets
 

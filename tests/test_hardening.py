@@ -550,7 +550,7 @@ def test_lower_bound_that_cannot_fit_in_memory_is_refused_before_the_solve(probl
     bracket, two more programs in the same process); 2 MB cannot hold the 400-triangle
     program (18 MB), so `bounds` refuses before the P1 solve and writes nothing."""
     from elastoplast.adapt.loop import AdaptOptions, lower_bound_limit
-    from elastoplast.mesh.checks import MEMORY_ENV
+    from elastoplast.limits import MEMORY_ENV
     from elastoplast.bounds.lower import (LOWER_BOUND_BYTES_PER_ELEMENT, SEQUENCE_MEMORY_FACTOR, LowerBoundOptions,
                                          solve_lower_bound)
     from elastoplast.errors import InputError
@@ -600,7 +600,7 @@ def test_adapt_plans_under_memory_and_keeps_its_steps_when_refused_mid_run(monke
     from elastoplast.adapt.loop import AdaptOptions, adapt, lower_bound_budget
     from elastoplast.bounds.upper import combine, u_bracket_of, upper_bound
     import elastoplast.bounds.lower as eq
-    from elastoplast.mesh.checks import MEMORY_ENV
+    from elastoplast.limits import MEMORY_ENV
     from elastoplast.errors import InputError
 
     data = small_cylinder()

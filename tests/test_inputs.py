@@ -21,8 +21,10 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast.mesh.checks import (MEMORY_ENV, available_memory, mesh_read_bytes, check_conforming, check_perfect_plasticity,
-                                crossed_centres, discretization_bytes, parse_bytes, structured_counts)
+from elastoplast.limits import (MEMORY_ENV, available_memory, mesh_read_bytes, discretization_bytes, parse_bytes,
+    structured_counts)
+from elastoplast.mesh.checks import check_conforming
+from elastoplast.fem.locking import check_perfect_plasticity, crossed_centres
 from elastoplast.cli.main import main
 from elastoplast.errors import InputError
 

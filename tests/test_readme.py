@@ -61,7 +61,12 @@ def test_first_command_writes_into_the_working_directory_only(tmp_path, monkeypa
 
 def test_python_blocks_run(tmp_path):
     """Each Python block runs from a copy of the folders it names, in the test's
-    working directory (the blocks use paths relative to the repository root)."""
+    working directory (the blocks use paths relative to the repository root). The
+    README's "Python" section must hold one: a README without it fails here, rather
+    than passing with nothing run."""
+    blocks = re.findall(r"```python\n(.*?)```", README, re.S)
+    assert any("import elastoplast as ep" in code and "ep.solve(" in code and "ep.certify(" in code
+               for code in blocks), "README.md has no ```python block that solves and certifies with elastoplast"
     shutil.copytree(ROOT / "problems", tmp_path / "problems")
-    for code in re.findall(r"```python\n(.*?)```", README, re.S):
+    for code in blocks:
         exec(compile(code, "README.md", "exec"), {})

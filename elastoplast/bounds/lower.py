@@ -67,6 +67,7 @@ from elastoplast.fem.material import n_components, von_mises
 from elastoplast.mesh.base import Mesh
 from elastoplast.problem.definition import Boundary
 from elastoplast.certificate.solution import Status
+from elastoplast.mesh.topology import FacetTopology, facet_measure, facet_topology, outward_normals
 
 #: every residual of :func:`certify_static` must be at most this (relative to its stated scale)
 CERTIFY_TOL = 1e-12
@@ -75,131 +76,6 @@ CERTIFY_TOL = 1e-12
 # ----------------------------------------------------------------------------
 # facet topology
 # ----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class FacetTopology:
-    """Facets of a simplicial mesh, classified by the problem's facet groups.
-
-    Local facet ``i`` of an element is the one opposite its local vertex ``i``.
-    Facet nodes are sorted ascending; ``*_vertices`` give, for each facet node, its
-    local vertex index in the element (so vertex values line up across a facet).
-
-    * interior facets: ``interior_elements (n_if, 2)``, ``interior_local (n_if, 2)``,
-      ``interior_vertices (n_if, 2, d)``, ``interior_nodes (n_if, d)``;
-    * boundary facets: ``boundary_elements (n_bf,)``, ``boundary_local``,
-      ``boundary_vertices (n_bf, d)``, ``boundary_nodes (n_bf, d)``,
-      ``fixed (n_bf, d)`` the displacement components fixed on the facet (clamped:
-      all; ``fix_component`` c: c), ``contact (n_bf,)`` Γ0 facets.
-
-    The traction components that must vanish on a boundary facet are
-    :attr:`zero_traction`: those neither fixed nor the contact component ``d``
-    of a Γ0 facet.
-    """
-
-    interior_elements: np.ndarray
-    interior_local: np.ndarray
-    interior_vertices: np.ndarray
-    interior_nodes: np.ndarray
-    boundary_elements: np.ndarray
-    boundary_local: np.ndarray
-    boundary_vertices: np.ndarray
-    boundary_nodes: np.ndarray
-    fixed: np.ndarray
-    contact: np.ndarray
-    #: group facets that are interior facets of the mesh (ignored, see the module docstring)
-    ignored_interior: int = 0
-
-    @property
-    def dim(self) -> int:
-        return self.boundary_nodes.shape[1]
-
-    @property
-    def contact_index(self) -> np.ndarray:
-        """Boundary-facet indices of the Γ0 facets, in the order of ``contact_facets``."""
-        return np.flatnonzero(self.contact)
-
-    @property
-    def contact_facets(self) -> np.ndarray:
-        """Node indices ``(n_cf, d)`` of the Γ0 facets."""
-        return self.boundary_nodes[self.contact]
-
-    @property
-    def zero_traction(self) -> np.ndarray:
-        """``(n_bf, d)``: traction components that must vanish."""
-        contact_comp = np.zeros_like(self.fixed)
-        contact_comp[:, -1] = self.contact
-        return ~self.fixed & ~contact_comp
-
-
-def _local_indices(cells: np.ndarray, elements: np.ndarray, nodes: np.ndarray) -> np.ndarray:
-    """Local vertex index in ``cells[elements]`` of each node of ``nodes (m, d)``."""
-    return np.argmax(cells[elements][:, None, :] == nodes[:, :, None], axis=2)
-
-
-def facet_topology(mesh: Mesh, boundary: Boundary) -> FacetTopology:
-    """Interior and boundary facets, and each boundary facet's condition (vectorised).
-
-    A boundary facet may belong to several groups: its fixed components are the
-    union over its groups (clamped fixes all), and it is a contact facet if any of
-    its groups is a contact group. Refuses group facets that are no face of any
-    element, non-manifold meshes and an empty contact zone.
-    """
-    cells, d = mesh.cells, mesh.dim
-    n = cells.shape[0]
-    faces = np.sort(np.concatenate([np.delete(cells, i, axis=1) for i in range(d + 1)]), axis=1)
-    elem = np.tile(np.arange(n), d + 1)
-    loc = np.repeat(np.arange(d + 1), n)
-
-    named = [("clamped", name) for name in boundary.clamped] + [("contact", name) for name in boundary.contact]
-    named += [(f"fix_component.{'xyz'[c]}", name) for c, names in boundary.fix_component.items() for name in names]
-    group_faces = [np.sort(np.asarray(mesh.groups[name], dtype=np.int64).reshape(-1, d), axis=1) for _, name in named]
-    uniq, inv = np.unique(np.concatenate([faces] + group_faces), axis=0, return_inverse=True)
-    inv = inv.ravel()
-    fid = inv[: faces.shape[0]]
-    counts = np.bincount(fid, minlength=uniq.shape[0])
-    if np.any(counts > 2):
-        raise InputError("mesh", f"{int(np.sum(counts > 2))} facet(s) shared by more than two elements (non-manifold mesh)")
-
-    order = np.argsort(fid, kind="stable")
-    fs = fid[order]
-    two = counts[fs] == 2
-    first = order[two][0::2]
-    second = order[two][1::2]
-    one = order[~two]
-    i_nodes = faces[first]
-    i_elem = np.stack([elem[first], elem[second]], axis=1)
-    i_loc = np.stack([loc[first], loc[second]], axis=1)
-    i_vert = np.stack([_local_indices(cells, i_elem[:, s], i_nodes) for s in range(2)], axis=1)
-
-    b_nodes = faces[one]
-    b_elem, b_loc = elem[one], loc[one]
-    b_vert = _local_indices(cells, b_elem, b_nodes)
-    position = -np.ones(uniq.shape[0], dtype=np.int64)
-    position[fid[one]] = np.arange(one.size)
-    interior = np.zeros(uniq.shape[0], dtype=bool)
-    interior[fid[first]] = True
-
-    fixed = np.zeros((one.size, d), dtype=bool)
-    contact = np.zeros(one.size, dtype=bool)
-    start = faces.shape[0]
-    ignored = 0
-    for (key, name), gf in zip(named, group_faces):
-        ids = inv[start: start + gf.shape[0]]
-        start += gf.shape[0]
-        if np.any(counts[ids] == 0):
-            raise InputError(f"boundary.{key}", f"group {name!r} has {int(np.sum(counts[ids] == 0))} facet(s) that are no face of any element")
-        ignored += int(np.sum(interior[ids]))
-        b = position[ids[~interior[ids]]]
-        if key == "clamped":
-            fixed[b] = True
-        elif key == "contact":
-            contact[b] = True
-        else:
-            fixed[b, "xyz".index(key[-1])] = True
-    if not contact.any():
-        raise InputError("boundary.contact", f"the contact zone {list(boundary.contact)} has no boundary facets")
-    return FacetTopology(i_elem, i_loc, i_vert, i_nodes, b_elem, b_loc, b_vert, b_nodes, fixed, contact, ignored)
 
 
 # ----------------------------------------------------------------------------
@@ -226,30 +102,6 @@ def traction_operator(v: np.ndarray) -> np.ndarray:
 def mass_matrix(dim: int) -> np.ndarray:
     """``int_S b_a b_b / |S| = (1 + delta_ab) / ((n+1)(n+2))`` on a ``dim``-simplex (n = dim)."""
     return (np.ones((dim + 1, dim + 1)) + np.eye(dim + 1)) / ((dim + 1) * (dim + 2))
-
-
-def facet_measure(points: np.ndarray) -> np.ndarray:
-    """Measure of facets with vertex coordinates ``(m, d, d)`` (length in 2D, area in 3D)."""
-    if points.shape[1] == 2:
-        return np.linalg.norm(points[:, 1] - points[:, 0], axis=1)
-    return 0.5 * np.linalg.norm(np.cross(points[:, 1] - points[:, 0], points[:, 2] - points[:, 0]), axis=1)
-
-
-def outward_normals(mesh: Mesh, elements: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(unit outward normals (m, d), measures (m,))`` of facets ``nodes`` of ``elements``,
-    from edge vectors (a perpendicular in 2D, a cross product in 3D), oriented away
-    from the element's centroid. Independent of the gradients the program uses."""
-    X = mesh.points[nodes]
-    if mesh.dim == 2:
-        e = X[:, 1] - X[:, 0]
-        nrm = np.stack([e[:, 1], -e[:, 0]], axis=1)
-    else:
-        nrm = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
-    size = np.linalg.norm(nrm, axis=1)
-    nrm = nrm / size[:, None]
-    away = X.mean(axis=1) - mesh.points[mesh.cells[elements]].mean(axis=1)
-    nrm *= np.sign(np.einsum("md,md->m", nrm, away))[:, None]
-    return nrm, facet_measure(X)
 
 
 # ----------------------------------------------------------------------------
@@ -915,7 +767,7 @@ def lower_bound_fits(dim: int, factor: float = SEQUENCE_MEMORY_FACTOR) -> int | 
     """The most elements whose lower-bound programs (``factor`` times the estimate of
     one) fit in the memory available now (:func:`elastoplast.mesh.checks.available_memory`),
     or None where that is unknown."""
-    from elastoplast.mesh.checks import available_memory
+    from elastoplast.limits import available_memory
 
     limit, _ = available_memory()
     return None if limit is None else int(limit // (factor * LOWER_BOUND_BYTES_PER_ELEMENT[dim]))
@@ -935,7 +787,7 @@ def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, lim
                                  f"limited to {largest:,} in {disc.dim}D (its cost grows fast, see "
                                  "benchmarks/bounds/solvers.md); coarsen the mesh, let 'elastoplast adapt' place the elements, "
                                  "or raise the limit with the lower bound's max_elements option")
-    from elastoplast.mesh.checks import check_memory
+    from elastoplast.limits import check_memory
 
     check_memory(int(factor * lower_bound_bytes(disc.dim, disc.n_elements)), "mesh",
                  f"the equilibrium-element lower bound with {solver} ({disc.n_elements:,} elements)",

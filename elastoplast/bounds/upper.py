@@ -377,7 +377,8 @@ def combine(upper: UpperBound, lower) -> Bounds:
     (:class:`elastoplast.bounds.lower.LowerBound`) on the same mesh, with the local
     gap terms integrated exactly (τ, η linear per element and ε(v) constant; λ and
     ``v_d - V`` linear on a facet)."""
-    from elastoplast.bounds.lower import facet_measure, mass_matrix
+    from elastoplast.mesh.topology import facet_measure
+    from elastoplast.bounds.lower import mass_matrix
 
     lo, hi = -float(lower.J), upper.Pi
     gap = hi - lo
@@ -662,7 +663,7 @@ def element_indicators(disc: Discretization, bounds: Bounds) -> np.ndarray:
     """The local gap of each element plus the gap of the contact facets it owns
     (clipped at 0: the terms are >= 0 for an exactly admissible field, round-off
     aside): the indicator adaptive refinement marks on."""
-    from elastoplast.bounds.lower import facet_topology
+    from elastoplast.mesh.topology import facet_topology
 
     topo = facet_topology(disc.mesh, disc.problem.boundary)
     eta = np.maximum(np.asarray(bounds.element_gap, dtype=float), 0.0)

@@ -14,7 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from elastoplast.mesh.checks import check_mesh_size
+from elastoplast.limits import check_mesh_size
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.material import Material, n_components
 from elastoplast.mesh.base import Mesh, _boundary_facets

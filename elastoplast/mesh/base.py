@@ -18,9 +18,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from elastoplast.mesh.checks import (as_path, boundary_facets, check_conforming, check_facet_groups,
-                     check_input_file, check_memory, check_mesh_size, element_name, format_bytes, locate_rows,
-                     merge_coincident_nodes, mesh_read_bytes, structured_counts, unique_rows)
+from elastoplast.limits import (as_path, check_input_file, check_memory, check_mesh_size, element_name, format_bytes,
+    mesh_read_bytes, structured_counts)
+from elastoplast.mesh.topology import boundary_facets, locate_rows, unique_rows
+from elastoplast.mesh.checks import check_conforming, check_facet_groups, merge_coincident_nodes
 from elastoplast.errors import InputError
 
 

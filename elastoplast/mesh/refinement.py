@@ -75,7 +75,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from elastoplast.mesh.checks import check_mesh_size
+from elastoplast.limits import check_mesh_size
 from elastoplast.errors import InputError, expect
 from elastoplast.mesh.base import Mesh
 from elastoplast.problem.options import Spec, check_value

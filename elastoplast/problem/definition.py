@@ -20,7 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from elastoplast.mesh.checks import as_path, read_bytes
+from elastoplast.limits import as_path, read_bytes
 from elastoplast.errors import InputError
 from elastoplast.fem.material import Material
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from elastoplast.solvers.accelerated import FastOptions, solve_accelerated
-from elastoplast.mesh.checks import check_perfect_plasticity
+from elastoplast.fem.locking import check_perfect_plasticity
 from elastoplast.solvers.conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
 from elastoplast.fem.discretize import Discretization
 from elastoplast.errors import InputError, expect

@@ -9,13 +9,13 @@ The data flows mesh -> discretisation -> solver -> certificate -> output::
     print(sol.U, sol.kkt.worst)
 """
 
-from elastoplast.bounds.upper import (Bounds, UpperBound, choose_delta, combine, energy_bounds, hencky_energy_density, penetration_bound,
-                     u_bracket, upper_bound)
+from elastoplast.bounds.bracket import Bounds, choose_delta, combine, energy_bounds, u_bracket
+from elastoplast.bounds.upper import UpperBound, hencky_energy_density, penetration_bound, upper_bound
 from elastoplast.certificate.kkt import KKTResiduals, certify
 from elastoplast.solvers.conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
 from elastoplast.fem.discretize import Discretization, discretize
-from elastoplast.bounds.lower import (LowerBound, LowerBoundOptions, StaticCertificate, StaticField, certify_static, dual_energy,
-                          solve_lower_bound, static_limit_load)
+from elastoplast.bounds.lower import LowerBound, LowerBoundOptions, solve_lower_bound, static_limit_load
+from elastoplast.bounds.static import StaticCertificate, StaticField, certify_static, dual_energy
 from elastoplast.errors import InputError
 from elastoplast.bounds.limit import KinematicBound, LimitBracket, LimitOptions, kinematic_limit_load, limit_load
 from elastoplast.fem.material import Material, return_mapping, von_mises
@@ -30,7 +30,12 @@ from elastoplast.problem.options import SolverOptions
 from elastoplast.solvers.registry import METHODS, method_options, solve
 from elastoplast.solvers.uzawa import UzawaOptions, load_sweep, solve_uzawa
 
-__version__ = "0.2.0"
+import importlib.metadata as _metadata
+
+try:  # declared once, in pyproject.toml; every install (pip install -e . included) records it
+    __version__ = _metadata.version("elastoplast")
+except _metadata.PackageNotFoundError:  # a source tree on sys.path, never installed: no version to claim
+    __version__ = "0+unknown"
 
 __all__ = [
     "BisectionState", "Boundary", "ConicOptions", "Discretization", "FastOptions", "InputError", "KKTResiduals",

@@ -29,12 +29,14 @@ from test_patch import E, H, NU, SY, patch_problem, uniaxial_strain
 import elastoplast as ep
 from elastoplast.fem.material import n_components
 from elastoplast.solvers.conic import deviatoric_basis
-from elastoplast.bounds.lower import (CERTIFY_TOL, LowerBoundOptions, _clarabel, _field, _repaired_field, _setup,
-    certify_static, lower_bound_program, mass_matrix, psi_weights, repair_static, solve_lower_bound,
-    static_limit_load, traction_operator)
+from elastoplast.bounds.static import CERTIFY_TOL, certify_static, mass_matrix, psi_weights, traction_operator
+from elastoplast.bounds.lower import (LowerBoundOptions, program_field, solve_program, repaired_field, lower_bound_setup,
+    solve_lower_bound, static_limit_load)
+from elastoplast.bounds.program import lower_bound_program
+from elastoplast.bounds.repair import repair_static
 from elastoplast.mesh.topology import facet_measure, facet_topology, outward_normals
-from elastoplast.fem.discretize import _element_geometry
-from elastoplast.mesh.base import _boundary_facets
+from elastoplast.fem.discretize import element_geometry
+from elastoplast.mesh.topology import boundary_facets
 
 
 def closed_form_energy(dim: int, F: float, m: ep.Material) -> tuple[float, float]:
@@ -91,7 +93,7 @@ def test_facet_topology_counts(cylinder_small):
     # every element facet is counted once as boundary or twice as interior
     assert 2 * topo.interior_elements.shape[0] + topo.boundary_elements.size == mesh.n_elements * (d + 1)
     np.testing.assert_array_equal(np.sort(topo.boundary_nodes, axis=1)[np.lexsort(topo.boundary_nodes.T[::-1])],
-                                  _boundary_facets(mesh.cells))
+                                  boundary_facets(mesh.cells))
     # the contact facets are the contact group's, the clamped sides are fully fixed
     assert topo.contact.sum() == mesh.groups["contact"].shape[0]
     clamped = np.isin(np.arange(topo.boundary_elements.size),
@@ -133,16 +135,16 @@ def test_certificate_refuses_a_dropped_traction_row_and_raw_solver_output():
     repair) fails too: its residuals are at the solver's tolerance."""
     disc = build(cylinder_dict(divisions=(16, 8)))
     opt = LowerBoundOptions()
-    s = _setup(disc, opt)
+    s = lower_bound_setup(disc, opt)
     q_nd = s.psi.q / (s.units.displacement * s.units.length ** (disc.dim - 1))
     prog = lower_bound_program(s.nd, s.topo, s.grads, q_nd)
-    _, _, x, _, _ = _clarabel(prog, opt)
-    raw = certify_static(disc, _field(s, prog, x, disc.force))
+    x = solve_program(disc, prog, opt, "clarabel").x
+    raw = certify_static(disc, program_field(s, prog, x, disc.force))
     assert not raw.passed
 
     # drop the tangential-traction row of the most loaded interior facet vertex
     n, d = disc.n_elements, disc.dim
-    field = _repaired_field(disc, s, prog, x)[0]
+    field = repaired_field(disc, s, prog, x)[0]
     ie, iv = s.topo.interior_elements[:, 0], s.topo.interior_vertices[:, 0]
     load = np.linalg.norm(field.tau[ie[:, None], iv], axis=2).max(axis=1)
     f = int(np.argmax(load))
@@ -151,8 +153,9 @@ def test_certificate_refuses_a_dropped_traction_row_and_raw_solver_output():
     keep[row] = False
     cones = [type(prog.cones[0])(prog.n_eq - 1)] + prog.cones[1:]
     dropped = replace(prog, A=prog.A[keep].tocsc(), b=prog.b[keep], cones=cones, n_eq=prog.n_eq - 1)
-    _, _, x2, obj2, _ = _clarabel(dropped, opt)
-    field2, resid, _ = _repaired_field(disc, s, dropped, x2)
+    ans = solve_program(disc, dropped, opt, "clarabel")
+    x2, obj2 = ans.x, ans.objective
+    field2, resid, _ = repaired_field(disc, s, dropped, x2)
     assert resid < 1e-14
     bad = certify_static(disc, field2)
     assert bad.failed == ("traction_jump",)
@@ -181,7 +184,7 @@ def cvxpy_lower_bound(disc: ep.Discretization) -> float:
         return cp.hstack([cp.reshape(cp.sum(cp.multiply(N[:, r, :], t), axis=1), (-1, 1), order="F") for r in range(d)])
 
     cons = []
-    _, grads = _element_geometry(mesh)
+    _, grads = element_geometry(mesh)
     for r in range(d):  # div tau = 0
         cons.append(sum(cp.sum(cp.multiply(traction_operator(grads[:, a])[:, r, :], sel(np.arange(n) * (d + 1) + a) @ tau),
                                axis=1) for a in range(d + 1)) == 0)
@@ -347,11 +350,11 @@ def test_repair_handles_redundant_rows():
             "load": {"force": 100.0},
         }))
     opt = LowerBoundOptions()
-    s = _setup(disc, opt)
+    s = lower_bound_setup(disc, opt)
     prog = lower_bound_program(s.nd, s.topo, s.grads, s.psi.q)
     A = prog.A[: prog.n_eq].toarray()
     assert np.linalg.matrix_rank(A) < A.shape[0]
-    _, _, x, _, _ = _clarabel(prog, opt)
+    x = solve_program(disc, prog, opt, "clarabel").x
     _, resid, _ = repair_static(prog, x)
     assert resid < 1e-14
     lb = solve_lower_bound(disc)

@@ -412,7 +412,7 @@ def test_campaign_refuses_an_adaptive_target_with_h0_before_running(tmp_path):
 
 def _api_calls(disc):
     from elastoplast.adapt.loop import adapt
-    from elastoplast.bounds.upper import certified_bounds
+    from elastoplast.bounds.bracket import certified_bounds
 
     return {
         "with_force(-1)": (lambda: disc.with_force(-1.0), "load.force"),
@@ -598,7 +598,8 @@ def test_adapt_plans_under_memory_and_keeps_its_steps_when_refused_mid_run(monke
     import warnings
 
     from elastoplast.adapt.loop import AdaptOptions, adapt, lower_bound_budget
-    from elastoplast.bounds.upper import combine, u_bracket_of, upper_bound
+    from elastoplast.bounds.bracket import combine, u_bracket_of
+    from elastoplast.bounds.upper import upper_bound
     import elastoplast.bounds.lower as eq
     from elastoplast.limits import MEMORY_ENV
     from elastoplast.errors import InputError

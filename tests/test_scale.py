@@ -22,10 +22,11 @@ from elastoplast.linalg.amg import FaceSystems, assemble, block_layout, bsr, con
 from elastoplast.solvers.newton import AMG_FROM_ELEMENTS, choose_backend, energy, forcing_term
 from elastoplast.solvers.registry import CONIC_MAX_ELEMENTS
 from elastoplast.certificate.kkt import abs_transpose_product, gaps
-from elastoplast.fem.discretize import _element_geometry, free_strain_operator, nondimensionalize
+from elastoplast.fem.discretize import element_geometry, free_strain_operator, nondimensionalize
 from elastoplast.errors import InputError
 from elastoplast.fem.material import consistent_tangent
-from elastoplast.mesh.base import _boundary_facets, structured_mesh
+from elastoplast.mesh.topology import boundary_facets
+from elastoplast.mesh.base import structured_mesh
 from elastoplast.solvers.uzawa import IterativeProjection
 
 TOL = 1e-9
@@ -60,7 +61,7 @@ def test_strain_operator_is_exact_on_linear_fields(dim):
     sym(A) in every element (Mandel: off-diagonals times sqrt 2)."""
     size, div = ([2.0, 1.0], [7, 4]) if dim == 2 else ([2.0, 2.0, 1.0], [4, 3, 3])
     mesh = structured_mesh(size, div, 0.5, grading=1.4)
-    _, grads = _element_geometry(mesh)
+    _, grads = element_geometry(mesh)
     B = free_strain_operator(mesh, grads, np.arange(mesh.n_nodes * dim), chunk=17)
     A = np.random.default_rng(dim).standard_normal((dim, dim))
     eps = B @ (mesh.points @ A.T).ravel()
@@ -77,7 +78,7 @@ def test_boundary_facets_of_a_box():
     4 (nx ny + ny nz + nx nz) boundary facets, each on one of the six planes."""
     nx, ny, nz = 5, 4, 3
     mesh = structured_mesh([5.0, 4.0, 3.0], [nx, ny, nz], 1.0, origin=[0.0, 0.0, 0.0])
-    facets = _boundary_facets(mesh.cells)
+    facets = boundary_facets(mesh.cells)
     assert facets.shape == (4 * (nx * ny + ny * nz + nx * nz), 3)
     X = mesh.points[facets]
     on_plane = np.zeros(len(facets), dtype=bool)

@@ -55,7 +55,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from elastoplast.bounds.upper import Bounds, conservative_discretization, element_indicators
+from elastoplast.bounds.bracket import Bounds, element_indicators
+from elastoplast.bounds.upper import conservative_discretization
 from elastoplast.fem.discretize import Discretization, discretize
 from elastoplast.errors import InputError, expect
 from elastoplast.mesh.base import Mesh
@@ -226,7 +227,8 @@ def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solu
            bracket: bool) -> _Bounded:
     """Solve and bound one mesh (the upper bound of :func:`~elastoplast.bounds.upper.best_upper_bound`
     with warm-started solves, the lower bound, their local gaps)."""
-    from elastoplast.bounds.upper import combine, smallest_upper_bound
+    from elastoplast.bounds.bracket import combine
+    from elastoplast.bounds.upper import smallest_upper_bound
     from elastoplast.bounds.lower import solve_lower_bound
 
     t0 = time.perf_counter()
@@ -253,7 +255,7 @@ def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solu
 def with_bracket(done: _Bounded, options: AdaptOptions) -> _Bounded:
     """``done`` with its U bracket (:func:`~elastoplast.bounds.upper.u_bracket_of`: two more
     lower bounds, at ``F ∓ δ``, and no P1 solve, as the ``bounds`` command does)."""
-    from elastoplast.bounds.upper import u_bracket_of
+    from elastoplast.bounds.bracket import u_bracket_of
 
     t0 = time.perf_counter()
     disc, sol, b = done.disc, done.solution, done.bounds
@@ -742,7 +744,7 @@ def run_adapt_command(problem: Problem, options: AdaptOptions, out_dir) -> bool:
 
     from tqdm.auto import tqdm
 
-    from elastoplast.bounds.upper import gap_fields
+    from elastoplast.bounds.bracket import gap_fields
     from elastoplast.mesh.base import write_mesh
     from elastoplast.io.output import json_text, staged_output, write_files
     from elastoplast.io.provenance import stamp

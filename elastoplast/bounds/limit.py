@@ -47,12 +47,23 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from elastoplast.fem.discretize import Discretization, _element_geometry, free_strain_operator
-from elastoplast.bounds.lower import LimitLowerBound, LowerBoundOptions, check_lower_bound_size, static_limit_load
+from elastoplast.bounds.lower import (
+    LimitLowerBound,
+    LowerBoundOptions,
+    check_lower_bound_size,
+    static_limit_load,
+)
+from elastoplast.certificate.solution import Status
 from elastoplast.errors import InputError, expect
-from elastoplast.problem.options import SolverOptions, option
+from elastoplast.fem.discretize import (
+    Discretization,
+    element_geometry,
+    free_strain_operator,
+)
 from elastoplast.fem.material import identity_vector
 from elastoplast.mesh.base import Mesh
+from elastoplast.problem.options import SolverOptions, option
+from elastoplast.solvers.backends import clarabel_settings, solve_clarabel
 
 SQRT_2_3 = np.sqrt(2.0 / 3.0)
 
@@ -194,7 +205,7 @@ def velocity_space(disc: Discretization, order: int) -> VelocitySpace:
 
     # gradients of the P2 basis at vertex a: vertex i (4 delta_ia - 1) grad l_i,
     # edge (i, j) 4 (delta_ia grad l_j + delta_ja grad l_i)
-    volumes, gl = _element_geometry(mesh)
+    volumes, gl = element_geometry(mesh)
     n_el, nb = cells.shape[0], p2_cells.shape[1]
     G = np.zeros((n_el, d + 1, nb, d))
     for pt in range(d + 1):
@@ -379,11 +390,6 @@ def evaluate_kinematic(disc: Discretization, space: VelocitySpace, v: np.ndarray
 
 def kinematic_limit_load(disc: Discretization, options: LimitOptions = LimitOptions()) -> KinematicBound:
     """The kinematic upper bound on the limit load (module docstring)."""
-    import clarabel
-
-    from elastoplast.solvers.conic import _CLARABEL_STATUS, clarabel_settings
-    from elastoplast.certificate.solution import Status
-
     _check_perfectly_plastic(disc)
     options = LimitOptions.of(options)
     t0 = time.perf_counter()
@@ -392,13 +398,11 @@ def kinematic_limit_load(disc: Discretization, options: LimitOptions = LimitOpti
     P, q, A, b, cones = kinematic_program(space, length)
     # QDLDL: on a 3D P2 quarter model (864 tetrahedra) faer took 55 s against 11 s
     settings = clarabel_settings(options, options.linear_solver)
-    res = clarabel.DefaultSolver(P, q, A, b, cones, settings).solve()
-    raw = str(res.status).split(".")[-1]
-    x = np.asarray(res.x)
-    v = project_trace_free(space, x[: space.n_free])
+    res = solve_clarabel(P, q, A, b, cones, settings)
+    raw, status = res.raw, res.status
+    v = project_trace_free(space, res.x[: space.n_free])
     F, per_el, residual, vmin = evaluate_kinematic(disc, space, v)
-    status = _CLARABEL_STATUS.get(raw, Status.FAILED)
-    notes = [f"Clarabel: {raw}"]
+    notes = [res.label]
     if status is Status.INFEASIBLE:
         notes.append("no trace-free velocity lifts the contact zone (the mesh locks): no finite bound")
         F = np.inf
@@ -417,9 +421,9 @@ def kinematic_limit_load(disc: Discretization, options: LimitOptions = LimitOpti
         velocity=space.full_velocity(v / vmin if vmin > 0 else v),
         element_dissipation=per_el,
         trace_residual=residual,
-        solver_value=float(res.obj_val) * disc.material.yield_stress * length ** (disc.dim - 1),
+        solver_value=res.objective * disc.material.yield_stress * length ** (disc.dim - 1),
         status=raw,
-        iterations=int(res.iterations),
+        iterations=res.iterations,
         time_s=time.perf_counter() - t0,
         message="; ".join(notes),
         edges=space.edges,

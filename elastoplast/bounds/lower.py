@@ -57,21 +57,37 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-import scipy.sparse as sp
 
-from elastoplast.problem.options import TIGHTEST_TOL, SolverOptions, option
-from elastoplast.solvers.conic import _CLARABEL_STATUS, ConicOptions, clarabel_settings, elastic_first, yield_cone_rows
-from elastoplast.fem.discretize import _STRAIN_ROWS, Discretization, Units, _element_geometry, nondimensionalize
-from elastoplast.errors import InputError, expect
-from elastoplast.fem.material import n_components, von_mises
-from elastoplast.mesh.base import Mesh
-from elastoplast.problem.definition import Boundary
+from elastoplast.bounds.program import Program, lower_bound_program
+from elastoplast.bounds.repair import repair_static
+from elastoplast.bounds.static import (
+    CERTIFY_TOL,
+    LocalTerms,
+    PsiWeights,
+    StaticCertificate,
+    StaticField,
+    certify_static,
+    local_terms,
+    psi_weights,
+)
 from elastoplast.certificate.solution import Status
-from elastoplast.mesh.topology import FacetTopology, facet_measure, facet_topology, outward_normals
-
-#: every residual of :func:`certify_static` must be at most this (relative to its stated scale)
-CERTIFY_TOL = 1e-12
-
+from elastoplast.errors import InputError, expect
+from elastoplast.fem.discretize import (
+    Discretization,
+    Units,
+    element_geometry,
+    nondimensionalize,
+)
+from elastoplast.fem.material import von_mises
+from elastoplast.mesh.topology import FacetTopology, facet_measure, facet_topology
+from elastoplast.problem.options import TIGHTEST_TOL, SolverOptions, option
+from elastoplast.solvers.backends import (
+    ConicAnswer,
+    clarabel_settings,
+    solve_clarabel,
+    solve_scs,
+)
+from elastoplast.solvers.conic import ConicOptions, elastic_first
 
 # ----------------------------------------------------------------------------
 # facet topology
@@ -83,267 +99,14 @@ CERTIFY_TOL = 1e-12
 # ----------------------------------------------------------------------------
 
 
-def traction_operator(v: np.ndarray) -> np.ndarray:
-    """``N(v) (..., d, k)`` with ``N(v) tau = tau v`` for Mandel vectors ``tau``.
-
-    It is the transpose of the Mandel symmetric gradient of ``u (x) v``
-    (``_STRAIN_ROWS``), since ``tau : sym(u (x) v) = (tau v) . u``. Hence also
-    ``div tau = sum_a N(grad b_a) tau_a`` for a linear field with vertex values
-    ``tau_a``. In plane strain the tau33 column is zero.
-    """
-    d = v.shape[-1]
-    out = np.zeros(v.shape[:-1] + (d, n_components(d)))
-    for c, terms in enumerate(_STRAIN_ROWS[d]):
-        for comp, der, w in terms:
-            out[..., comp, c] += w * v[..., der]
-    return out
-
-
-def mass_matrix(dim: int) -> np.ndarray:
-    """``int_S b_a b_b / |S| = (1 + delta_ab) / ((n+1)(n+2))`` on a ``dim``-simplex (n = dim)."""
-    return (np.ones((dim + 1, dim + 1)) + np.eye(dim + 1)) / ((dim + 1) * (dim + 2))
-
-
 # ----------------------------------------------------------------------------
 # the obstacle term
 # ----------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class PsiWeights:
-    """``q (n_cf, d)`` with ``q_fa >= int_f psi b_a`` (b_a the facet's P1 basis), so that
-    ``int_f lam psi <= sum_a q_fa lam_a`` for ``lam >= 0``; ``rigorous`` says whether
-    the inequality is proved, ``method`` how q was obtained."""
-
-    q: np.ndarray
-    rigorous: bool
-    method: str
-
-
-def psi_weights(disc: Discretization, topo: FacetTopology, subdivisions: int = 4) -> PsiWeights:
-    """Safe obstacle weights on the contact facets.
-
-    Sphere, cylinder, paraboloid and flat ψ are convex (the sphere on
-    ``|x' - c| < R``, which :meth:`Obstacle.psi` enforces at the facet vertices, hence
-    on the facets), so the P1 interpolant is above ψ on each facet and
-    ``q_fa = int_f I_h psi b_a = |f| sum_b M_ab psi_b`` exactly. For an ``expression``
-    ψ nothing is known about convexity: ψ is enclosed by interval arithmetic on each
-    of ``subdivisions**(d-1)`` pieces of every facet (:mod:`elastoplast.problem.intervals`),
-    and ``q_fa = sum_pieces max_piece psi * int_piece b_a``.
-    """
-    mesh, obstacle = disc.mesh, disc.problem.obstacle
-    nodes = topo.contact_facets
-    X = mesh.points[nodes][:, :, :-1]
-    d = disc.dim
-    measure = facet_measure(mesh.points[nodes])
-    if obstacle.shape != "expression":
-        psi = obstacle.psi(X.reshape(-1, d - 1), field="obstacle").reshape(-1, d)
-        return PsiWeights(measure[:, None] * psi @ mass_matrix(d - 1), True, "P1 interpolant of a convex psi")
-    from elastoplast.problem.intervals import enclose_on_simplices
-
-    q, reason = enclose_on_simplices(obstacle, X, measure, subdivisions)
-    if q is None:
-        psi = obstacle.psi(X.reshape(-1, d - 1), field="obstacle").reshape(-1, d)
-        return PsiWeights(measure[:, None] * psi @ mass_matrix(d - 1), False,
-                          f"P1 interpolant (not an over-estimate: {reason})")
-    return PsiWeights(q, True, f"interval enclosure on {subdivisions ** (d - 1)} pieces per facet")
-
-
 # ----------------------------------------------------------------------------
 # the field, its energy and its certificate
 # ----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class StaticField:
-    """A candidate stress field of the equilibrium element, in user units.
-
-    ``tau (n_el, d+1, k)`` Mandel vertex values (in the order of ``mesh.cells``; in
-    plane strain with tau33), ``eta (n_el, d+1)`` hardening stresses at the vertices,
-    ``contact_facets (n_cf, d)`` node indices of the Γ0 facets (sorted per facet),
-    ``lam (n_cf, d)`` contact pressure at their vertices (in that node order),
-    ``force`` the F it balances.
-    """
-
-    tau: np.ndarray
-    eta: np.ndarray
-    contact_facets: np.ndarray
-    lam: np.ndarray
-    force: float
-
-
-@dataclass(frozen=True)
-class LocalTerms:
-    """Per-element and per-contact-facet pieces of J and of the weak-duality gap.
-
-    ``element_energy`` = ``1/2 int_T (A tau:tau + eta^2/H)``; ``element_stress`` =
-    ``int_T tau`` (= |T| times the vertex mean, Mandel), so ``int_T tau : eps(v) =
-    element_stress . eps_T(v)`` for P1 v; ``facet_force`` = ``int_f lam``;
-    ``facet_psi_work`` = ``sum_a q_fa lam_a >= int_f lam psi``. J is the sum of
-    ``element_energy`` and ``facet_psi_work``.
-    """
-
-    element_energy: np.ndarray
-    element_stress: np.ndarray
-    facet_force: np.ndarray
-    facet_psi_work: np.ndarray
-
-
-def local_terms(disc: Discretization, field: StaticField, psi: PsiWeights | None = None,
-                topo: FacetTopology | None = None) -> LocalTerms:
-    """The terms of :class:`LocalTerms`, integrated exactly with the P1 mass matrices."""
-    d, m = disc.dim, disc.material
-    topo = facet_topology(disc.mesh, disc.problem.boundary) if topo is None else topo
-    psi = psi_weights(disc, topo) if psi is None else psi
-    M = mass_matrix(d)
-    A = m.compliance(d)
-    tau = np.asarray(field.tau, dtype=float)
-    energy = np.einsum("ab,eai,ij,ebj->e", M, tau, A, tau)
-    if m.hardening > 0:
-        energy = energy + np.einsum("ab,ea,eb->e", M, field.eta, field.eta) / m.hardening
-    measure = facet_measure(disc.mesh.points[field.contact_facets])
-    return LocalTerms(
-        element_energy=0.5 * disc.volumes * energy,
-        element_stress=disc.volumes[:, None] * tau.mean(axis=1),
-        facet_force=measure * field.lam.mean(axis=1),
-        facet_psi_work=np.einsum("fa,fa->f", psi.q, field.lam),
-    )
-
-
-def dual_energy(disc: Discretization, field: StaticField, psi: PsiWeights | None = None) -> float:
-    """``J = 1/2 int (A tau:tau + eta^2/H) + int lam psi_over``, integrated exactly
-    (eta is ignored when H = 0; :func:`certify_static` requires it to vanish then)."""
-    t = local_terms(disc, field, psi)
-    return float(t.element_energy.sum() + t.facet_psi_work.sum())
-
-
-@dataclass(frozen=True)
-class StaticCertificate:
-    """Admissibility residuals of a :class:`StaticField`, each relative to a stated scale.
-
-    ``scale`` is the stress scale ``s = max(max_vertices |tau|, max lam, F/|Γ0|)``
-    (|.| the Frobenius norm of the full tensor) and ``t = tau n`` the traction on a
-    facet with unit outward normal n at a facet vertex:
-
-    * ``equilibrium``: ``max_T |div tau_T| h_T / s`` (h_T the smallest height of T);
-    * ``traction_jump``: ``max |t_T + t_T'| / s`` over the vertices of interior facets;
-    * ``free_traction``: ``max |t_j| / s`` over free facets (no group);
-    * ``symmetry_traction``: ``max |t_j| / s``, j not fixed, on facets with fixed components;
-    * ``contact_normal``: ``max |t_d - lam| / s`` and ``contact_tangential``: ``max |t_j| / s``
-      (j != d, not fixed) on Γ0 facets;
-    * ``force_balance``: ``|int_Γ0 lam - F| / F`` with F the problem's load ``disc.force``;
-    * ``contact_sign``: ``max(-lam, 0) / s``;
-    * ``yield_excess``: ``max(sqrt(3/2)|dev tau| - sigma_y - eta, 0) / sigma_y`` at every
-      element vertex;
-    * ``hardening``: ``max |eta| / sigma_y`` when H = 0 (the energy ``eta^2 / H`` forces
-      eta = 0), 0 when H > 0. The sign of eta is free: weak duality needs
-      ``W(eps) >= tau:eps - 1/2 A tau:tau - eta^2/(2H)``, and for eta < 0 with
-      ``sqrt(3/2)|dev tau| <= sigma_y + eta`` the pair ``(tau, 0)`` is in D and gives a
-      larger right-hand side, so ``yield_excess`` is the only condition on eta.
-
-    ``passed`` when every residual is at most ``tol``.
-    """
-
-    equilibrium: float
-    traction_jump: float
-    free_traction: float
-    symmetry_traction: float
-    contact_normal: float
-    contact_tangential: float
-    force_balance: float
-    contact_sign: float
-    yield_excess: float
-    hardening: float
-    scale: float
-    tol: float
-
-    def as_dict(self) -> dict[str, float]:
-        return {k: float(getattr(self, k)) for k in RESIDUALS}
-
-    @property
-    def worst(self) -> float:
-        return max(self.as_dict().values())
-
-    @property
-    def failed(self) -> tuple[str, ...]:
-        """Names of the residuals above the tolerance."""
-        return tuple(k for k, v in self.as_dict().items() if not v <= self.tol)
-
-    @property
-    def passed(self) -> bool:
-        return not self.failed
-
-
-RESIDUALS = ("equilibrium", "traction_jump", "free_traction", "symmetry_traction", "contact_normal",
-             "contact_tangential", "force_balance", "contact_sign", "yield_excess", "hardening")
-
-
-def _vmax(a: np.ndarray) -> float:
-    return float(np.max(a, initial=0.0))
-
-
-def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIFY_TOL) -> StaticCertificate:
-    """Check that ``field`` is statically and plastically admissible (docs/bounds.md).
-
-    Uses only the mesh, the facet groups, the material and the field: facet normals
-    and measures come from edge vectors (:func:`outward_normals`), not from the
-    program's gradient-based rows, and whatever produced the field plays no part.
-
-    Why ``tol = 1e-12`` is safe: an exactly admissible field, stored in double
-    precision, has residuals of a few units of round-off (each residual sums at
-    most 2(d+1)k products of numbers bounded by the scale s: well below 1e-14 s).
-    The repaired fields of :func:`repair_static` measure at 1e-16..1e-14. A field
-    within 1e-12 s of every linear condition is such a stored field up to a
-    perturbation of relative size 1e-12, which changes J by the same relative
-    amount, far below the discretisation gaps that the bounds measure. A solver's
-    raw output (residuals at its tolerance, 1e-10..1e-6) fails.
-    """
-    mesh, m = disc.mesh, disc.material
-    topo = facet_topology(mesh, disc.problem.boundary)
-    tau = np.asarray(field.tau, dtype=float)
-    eta = np.asarray(field.eta, dtype=float)
-    lam = np.asarray(field.lam, dtype=float)
-    F = float(disc.force)  # the problem's load, not the one the field claims
-    if not np.array_equal(np.asarray(field.contact_facets), topo.contact_facets):
-        raise InputError("field.contact_facets", "do not match the contact facets of the problem")
-
-    # equilibrium: div of the linear field from the barycentric gradients
-    _, grads = _element_geometry(mesh)
-    div = np.einsum("eadk,eak->ed", traction_operator(grads), tau)
-    h = 1.0 / np.linalg.norm(grads, axis=2).max(axis=1)
-
-    contact_measure = facet_measure(mesh.points[topo.contact_facets])
-    # Mandel vectors are orthonormal coordinates: their norm is the tensor's Frobenius norm
-    s = max(_vmax(np.linalg.norm(tau, axis=-1)), _vmax(lam), F / contact_measure.sum())
-
-    def traction(elements, vertices, nodes):
-        nrm, _ = outward_normals(mesh, elements, nodes)
-        t_vertex = tau[elements[:, None], vertices]  # (m, d, k)
-        return np.einsum("mdk,mak->mad", traction_operator(nrm), t_vertex)
-
-    jump = traction(topo.interior_elements[:, 0], topo.interior_vertices[:, 0], topo.interior_nodes) + traction(
-        topo.interior_elements[:, 1], topo.interior_vertices[:, 1], topo.interior_nodes)
-    tb = np.abs(traction(topo.boundary_elements, topo.boundary_vertices, topo.boundary_nodes))  # (n_bf, d vertices, d)
-    zero = topo.zero_traction[:, None, :]
-    free = ~topo.fixed.any(axis=1) & ~topo.contact
-    sym = topo.fixed.any(axis=1) & ~topo.contact
-    tb_signed = traction(topo.boundary_elements[topo.contact], topo.boundary_vertices[topo.contact],
-                         topo.contact_facets)
-    vm = von_mises(tau.reshape(-1, disc.k)).reshape(eta.shape)
-    return StaticCertificate(
-        equilibrium=_vmax(np.linalg.norm(div, axis=1) * h) / s,
-        traction_jump=_vmax(np.linalg.norm(jump, axis=2)) / s,
-        free_traction=_vmax(np.where(zero, tb, 0.0)[free]) / s,
-        symmetry_traction=_vmax(np.where(zero, tb, 0.0)[sym]) / s,
-        contact_normal=_vmax(np.abs(tb_signed[:, :, -1] - lam)) / s,
-        contact_tangential=_vmax(np.where(zero, tb, 0.0)[topo.contact]) / s,
-        force_balance=abs(float(contact_measure @ lam.mean(axis=1)) - F) / F,
-        contact_sign=_vmax(-lam) / s,
-        yield_excess=_vmax(vm - m.yield_stress - eta) / m.yield_stress,
-        hardening=0.0 if m.hardening > 0 else _vmax(np.abs(eta)) / m.yield_stress,
-        scale=s,
-        tol=tol,
-    )
 
 
 # ----------------------------------------------------------------------------
@@ -403,7 +166,7 @@ class LowerBoundOptions(SolverOptions):
 FAER_FROM_ELEMENTS_3D = 600
 
 
-def _kkt_solver(disc: Discretization, options: "LowerBoundOptions") -> str:
+def lower_bound_kkt_solver(disc: Discretization, options: "LowerBoundOptions") -> str:
     if options.linear_solver != "auto":
         return options.linear_solver
     return "faer" if disc.dim == 3 and disc.n_elements >= FAER_FROM_ELEMENTS_3D else "qdldl"
@@ -432,230 +195,16 @@ def lower_bound_solver(disc: Discretization, options: "LowerBoundOptions", limit
     return "scs" if not limit and disc.dim == 3 and disc.n_elements >= SCS_FROM_ELEMENTS_3D else "clarabel"
 
 
-def _yield_margin(solver: str, options: "LowerBoundOptions") -> float:
+def yield_margin(solver: str, options: "LowerBoundOptions") -> float:
     """H = 0: the relative margin below sigma_y of the energy program (see :class:`LowerBoundOptions`)."""
     if solver == "scs":
         return min(max(options.yield_margin, SCS_YIELD_MARGIN_PER_EPS * options.scs_eps), 1e-2)
     return options.yield_margin
 
 
-@dataclass(frozen=True)
-class Program:
-    """Clarabel data ``(P, q, A, b, cones)``; the first ``n_eq`` rows of A are the
-    equality rows; ``weights`` are the element weights ``w_T = sqrt(|T|/mean|T|)`` of
-    the unknowns ``tau_hat = w_T tau``, ``eta_hat = w_T eta``, ``lam_hat = w_T lam``
-    (T the element of the contact facet); ``cols`` the column ranges by name."""
-
-    P: sp.csc_matrix
-    q: np.ndarray
-    A: sp.csc_matrix
-    b: np.ndarray
-    cones: list
-    n_eq: int
-    weights: np.ndarray
-    lam_weights: np.ndarray
-    cols: dict
-
-
-def _block_coo(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray):
-    """Flatten broadcastable index/value arrays, dropping structural zeros."""
-    rows, cols, vals = (np.broadcast_to(a, np.broadcast_shapes(rows.shape, cols.shape, vals.shape)).ravel()
-                        for a in (rows, cols, vals))
-    keep = vals != 0.0
-    return rows[keep], cols[keep], vals[keep]
-
-
-def equality_rows(nd: Discretization, topo: FacetTopology, grads: np.ndarray, n_cols: int,
-                  lam_col: int, force_col: int | None):
-    """The equality rows ``A x = b`` in energy-normalised unknowns, every row a force.
-
-    With ``G_ea = (|T_e| / w_e) N(grad b_a)`` (d x k; note ``|f_i| n_i / d = -|T| grad b_i``
-    for the facet opposite vertex i, n its outward unit normal):
-
-    * element e: ``sum_a G_ea tau_hat_ea = 0`` (``|T| div tau = 0``);
-    * interior facet, at each facet vertex: ``G_{T,i} tau_hat_{T,a} + G_{T',i'}
-      tau_hat_{T',a'} = 0`` (the outward tractions times ``|f|/d`` cancel);
-    * boundary facet opposite vertex i of T, at facet vertex a, component j:
-      ``(G_{T,i} tau_hat_{T,a})_j = 0`` where the traction must vanish, and
-      ``(G_{T,i} tau_hat_{T,a})_d + (|f|/d) / w_T lam_hat_a = 0`` on Γ0;
-    * ``sum_f (|f|/d) sum_a lam_a = F`` (or ``- F_hat`` in column ``force_col``).
-    """
-    d, k, n = nd.dim, nd.k, nd.n_elements
-    w = np.sqrt(nd.volumes / nd.volumes.mean())
-    G = (nd.volumes / w)[:, None, None, None] * traction_operator(grads)  # (n, d+1, d, k)
-    ck = np.arange(k)
-    cr = np.arange(d)
-
-    def tau_cols(e, a):
-        return ((e * (d + 1) + a) * k)[..., None, None] + ck  # (..., 1, k)
-
-    parts = []
-    # element equilibrium
-    e = np.arange(n)[:, None]
-    a = np.arange(d + 1)[None, :]
-    parts.append(_block_coo((e * d)[:, :, None, None] + cr[:, None], tau_cols(e, a), G))
-    row = n * d
-    # interior facets
-    IE, IL, IV = topo.interior_elements, topo.interior_local, topo.interior_vertices
-    n_if = IE.shape[0]
-    f = np.arange(n_if)[:, None, None]
-    j = np.arange(d)[None, None, :]
-    rows = row + ((f * d + j) * d)[..., None, None] + cr[:, None]  # (n_if, 1, d, d, 1)
-    Gf = G[IE, IL][:, :, None]  # (n_if, 2, 1, d, k)
-    parts.append(_block_coo(rows, tau_cols(IE[:, :, None], IV), Gf))
-    row += n_if * d * d
-    # boundary facets
-    BE, BL, BV = topo.boundary_elements, topo.boundary_local, topo.boundary_vertices
-    n_bf = BE.shape[0]
-    cond = topo.zero_traction.copy()
-    cond[:, -1] |= topo.contact
-    keep = np.broadcast_to(cond[:, None, :], (n_bf, d, d))  # (facet, vertex, component)
-    row_id = np.where(keep, row + np.cumsum(keep.ravel()).reshape(keep.shape) - 1, -1)
-    Gb = G[BE, BL][:, None]  # (n_bf, 1, d, k)
-    r_, c_, v_ = _block_coo(row_id[..., None], tau_cols(BE[:, None], BV), Gb)
-    parts.append((r_[r_ >= 0], c_[r_ >= 0], v_[r_ >= 0]))
-    row += int(keep.sum())
-    # contact pressure in the vertical rows of the Γ0 facets, and the force balance
-    ci = topo.contact_index
-    share = (nd.volumes[BE[ci]] * np.linalg.norm(grads[BE[ci], BL[ci]], axis=1) / w[BE[ci]])  # (|f|/d) / w_T
-    lam_cols = lam_col + np.arange(ci.size * d).reshape(-1, d)
-    parts.append((row_id[ci, :, -1].ravel(), lam_cols.ravel(), np.repeat(share, d)))
-    parts.append((np.full(lam_cols.size, row), lam_cols.ravel(), np.repeat(share, d)))
-    b = np.zeros(row + 1)
-    if force_col is None:
-        b[row] = nd.force
-    else:
-        parts.append((np.array([row]), np.array([force_col]), np.array([-1.0])))
-    r, c, v = (np.concatenate(x) for x in zip(*parts))
-    return sp.csc_matrix((v, (r, c)), shape=(row + 1, n_cols)), b
-
-
-def lower_bound_program(nd: Discretization, topo: FacetTopology, grads: np.ndarray, q_psi: np.ndarray,
-                        limit: bool = False, with_yield: bool = True) -> Program:
-    """The equilibrium-element program on the O(1) problem ``nd`` (see
-    :func:`~elastoplast.fem.discretize.nondimensionalize`); ``grads`` the barycentric
-    gradients in its length unit, ``q_psi`` the obstacle weights in its units.
-
-    Energy mode: minimise ``1/2 sum_T sum_ab M_ab (tau_hat_a A tau_hat_b + eta_hat_a
-    eta_hat_b / H) + sum q lam`` (the exact J: ``|T| / w_T^2 = 1`` per element).
-    Limit mode: minimise ``-F_hat`` with eta = 0 and no energy. Cones: ``lam_hat >= 0``,
-    and ``sqrt(3/2)|dev tau_hat_a| <= w_T sigma_y + eta_hat_a`` at each element vertex
-    (the per-element cone of (S), :func:`~elastoplast.solvers.conic.yield_cone_rows`, applied
-    to a copy of ``nd`` whose 'elements' are the element vertices).
-    """
-    import clarabel
-
-    from elastoplast.solvers.conic import contact_sign_rows
-
-    d, k, n, m = nd.dim, nd.k, nd.n_elements, nd.material
-    nv = n * (d + 1)
-    has_eta = not limit and m.hardening > 0
-    n_lam = topo.contact_index.size * d
-    eta_col = nv * k
-    lam_col = eta_col + (nv if has_eta else 0)
-    n_cols = lam_col + n_lam + (1 if limit else 0)
-    force_col = n_cols - 1 if limit else None
-    w = np.sqrt(nd.volumes / nd.volumes.mean())
-    lam_w = np.repeat(w[topo.boundary_elements[topo.contact_index]], d)
-
-    A_eq, b_eq = equality_rows(nd, topo, grads, n_cols, lam_col, force_col)
-    A_nn, b_nn = contact_sign_rows(n_lam, lam_col, n_cols)
-    blocks = [A_eq, A_nn]
-    rhs = [b_eq, b_nn]
-    cones = [clarabel.ZeroConeT(b_eq.size), clarabel.NonnegativeConeT(n_lam)]
-    if with_yield:
-        vertex_disc = replace(nd, volumes=np.repeat(nd.volumes, d + 1))
-        A_soc, b_soc = yield_cone_rows(vertex_disc, 0, eta_col if has_eta else None, n_cols)
-        blocks.append(A_soc)
-        rhs.append(b_soc)
-        cones += [clarabel.SecondOrderConeT(k)] * nv
-
-    M = mass_matrix(d)
-    q = np.zeros(n_cols)
-    if limit:
-        P = sp.csc_matrix((n_cols, n_cols))
-        q[force_col] = -1.0
-    else:
-        pb = [sp.kron(sp.eye(n), sp.csr_matrix(np.triu(np.kron(M, m.compliance(d)))))]
-        if has_eta:
-            pb.append(sp.kron(sp.eye(n), sp.csr_matrix(np.triu(M) / m.hardening)))
-        pb.append(sp.csr_matrix((n_lam, n_lam)))
-        P = sp.block_diag(pb, format="csc")
-        q[lam_col: lam_col + n_lam] = q_psi.ravel() / lam_w
-    cols = dict(tau=slice(0, nv * k), eta=slice(eta_col, lam_col) if has_eta else None,
-                lam=slice(lam_col, lam_col + n_lam), force=force_col)
-    return Program(P, q, sp.vstack(blocks, format="csc"), np.concatenate(rhs), cones, b_eq.size, w, lam_w, cols)
-
-
 # ----------------------------------------------------------------------------
 # repair: exact projection onto the equality rows, lam >= 0 kept exactly
 # ----------------------------------------------------------------------------
-
-#: regularisation of the row-normalised Gram matrix A A^T (diagonal 1): redundant
-#: traction rows make it singular; iterative refinement removes the regularisation's bias
-GRAM_REGULARISATION = 1e-10
-
-
-def _project_affine(A: sp.csc_matrix, b: np.ndarray, x: np.ndarray, max_refine: int = 10) -> tuple[np.ndarray, float]:
-    """Minimum-norm correction of x onto ``A x = b`` (b in the range of A).
-
-    Rows are normalised, ``K = A A^T + eps I`` is factored once and refined:
-    ``x <- x + A^T K^{-1} (b - A x)``. Every correction lies in the range of A^T,
-    so the limit is the minimum-norm correction even when rows are redundant
-    (K singular without eps); each sweep shrinks the residual by
-    ``eps / (sigma^2 + eps)`` for every nonzero singular value sigma of A.
-    Returns ``(x, max |b - A x| / max_i sum_j |A_ij x_j|)`` after the last sweep.
-    """
-    from elastoplast.solvers.uzawa import factorize_metric
-
-    A = sp.csr_matrix(A)
-    norms = np.sqrt(np.asarray(A.multiply(A).sum(axis=1)).ravel())
-    norms[norms == 0] = 1.0
-    As = sp.diags(1.0 / norms) @ A
-    bs = b / norms
-    solve = factorize_metric((As @ As.T + GRAM_REGULARISATION * sp.eye(A.shape[0])).tocsc())
-    x = x.copy()
-    last = np.inf
-    for _ in range(max_refine):
-        r = bs - As @ x
-        size = np.abs(r).max(initial=0.0)
-        if size >= 0.5 * last:
-            break
-        x += As.T @ solve(r)
-        last = size
-    scale = max((abs(As) @ np.abs(x)).max(initial=0.0), np.finfo(float).tiny)
-    return x, float(np.abs(bs - As @ x).max(initial=0.0) / scale)
-
-
-def repair_static(prog: Program, x: np.ndarray, max_rounds: int = 10) -> tuple[np.ndarray, float, int]:
-    """Project the solver's ``(tau_hat, lam_hat)`` exactly onto the equality rows,
-    keeping ``lam >= 0`` exactly.
-
-    Pressures that are not positive are fixed at 0 (their columns dropped) and the
-    rest is projected; any pressure the correction drives negative joins them and
-    the projection is repeated from there, so the answer has ``lam >= 0`` exactly
-    and satisfies the rows to round-off. In limit mode F is held at the solver's
-    value. Returns ``(x, relative residual, number of pressures fixed at zero)``.
-    """
-    x = x.copy()
-    lam = np.zeros(x.size, dtype=bool)
-    lam[prog.cols["lam"]] = True
-    movable = np.zeros(x.size, dtype=bool)
-    movable[prog.cols["tau"]] = True
-    movable[prog.cols["lam"]] = True
-    A_eq = prog.A[: prog.n_eq]
-    zero = lam & (x <= 0.0)
-    res = np.inf
-    for _ in range(max_rounds):
-        x[zero] = 0.0
-        cols = movable & ~zero
-        rhs = prog.b[: prog.n_eq] - A_eq[:, ~cols] @ x[~cols]
-        x[cols], res = _project_affine(A_eq[:, cols], rhs, x[cols])
-        neg = lam & (x < 0.0)
-        if not neg.any():
-            break
-        zero |= neg
-    return x, res, int(zero.sum())
 
 
 # ----------------------------------------------------------------------------
@@ -794,105 +343,43 @@ def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, lim
                  "coarsen the mesh, or let 'elastoplast adapt' place the elements")
 
 
-def _setup(disc: Discretization, options: LowerBoundOptions, force: float | None = None, limit: bool = False) -> _Setup:
+def lower_bound_setup(disc: Discretization, options: LowerBoundOptions, force: float | None = None, limit: bool = False) -> _Setup:
     check_lower_bound_size(disc, options, limit)
     topo = facet_topology(disc.mesh, disc.problem.boundary)
     psi = psi_weights(disc, topo, options.psi_subdivisions)
     nd, units = nondimensionalize(disc if force is None else disc.with_force(force))
-    _, grads = _element_geometry(disc.mesh)
+    _, grads = element_geometry(disc.mesh)
     return _Setup(topo, psi, nd, units, grads * units.length)
 
 
-def _clarabel(prog: Program, options: LowerBoundOptions, solver: str = "qdldl"):
-    import clarabel
+def _scs(prog: Program, options: LowerBoundOptions) -> ConicAnswer:
+    """SCS on the program; SCS and Clarabel share the convention ``A x + s = b``.
 
-    conic = ConicOptions(ip_tol=options.ip_tol, max_iter=options.max_iter, verbose=options.verbose,
-                         time_limit=options.time_limit)
-    res = clarabel.DefaultSolver(prog.P, prog.q, prog.A, prog.b, prog.cones, clarabel_settings(conic, solver)).solve()
-    raw = str(res.status).split(".")[-1]
-    return _CLARABEL_STATUS.get(raw, Status.FAILED), raw, np.asarray(res.x), float(res.obj_val), int(res.iterations)
-
-
-#: SCS's ``status_val`` (scs/include/glbopts.h) -> Status; 2 is "solved inaccurate", what
-#: SCS returns at its iteration or time limit with a usable point
-_SCS_STATUS = {1: Status.CONVERGED, 2: Status.MAX_ITERATIONS, -2: Status.INFEASIBLE, -7: Status.INFEASIBLE}
-
-
-def _scs_cones(cones: list) -> dict:
-    """Clarabel's cone list as SCS's cone dictionary (same row order: zero, nonnegative, SOC)."""
-    z = sum(c.dim for c in cones if type(c).__name__ == "ZeroConeT")
-    nn = sum(c.dim for c in cones if type(c).__name__ == "NonnegativeConeT")
-    q = [c.dim for c in cones if type(c).__name__ == "SecondOrderConeT"]
-    if len(cones) != (z > 0) + (nn > 0) + len(q):
-        raise ValueError("cones other than zero, nonnegative and second-order")
-    return {"z": z, "l": nn, "q": q}
-
-
-def _scs(prog: Program, options: LowerBoundOptions):
-    """SCS (O'Donoghue et al. 2016, 2021) on the same data ``(P, q, A, b, cones)``:
-    SCS's and Clarabel's conventions agree (``A x + s = b``, ``s`` in the cones).
-    Returns ``(status, raw status, x, objective, iterations)`` like :func:`_clarabel`.
-
-    SCS is Douglas-Rachford splitting on the homogeneous self-dual embedding:
-    each iteration solves one linear system with a matrix factored once (MKL PARDISO
-    where installed, else QDLDL) and projects onto the cones (per element vertex, in
-    closed form), with Anderson acceleration. Its residuals are of the size of
-    ``scs_eps``; the repair makes its answer exactly admissible whatever they are.
+    The slack of the rows ``-lam + s = 0`` (``s >= 0``, ``contact_sign_rows``) is lam
+    projected onto ``lam >= 0``, with exact zeros where the contact is inactive: a
+    better start for the repair than x's own lam, which is off by SCS's residual (tiny
+    values of either sign would each cost the repair another round). The repair makes
+    the answer exactly admissible whatever SCS's residuals (of the size of ``scs_eps``).
     """
-    import scs
-
-    settings = dict(eps_abs=options.scs_eps, eps_rel=options.scs_eps, max_iters=options.scs_max_iter,
-                    verbose=options.verbose)
-    if options.time_limit is not None:
-        settings["time_limit_secs"] = float(options.time_limit)
-    data = {"P": sp.triu(prog.P, format="csc"), "A": sp.csc_matrix(prog.A), "b": prog.b, "c": prog.q}
-    res = scs.SCS(data, _scs_cones(prog.cones), **settings).solve()
-    info = res["info"]
-    status = _SCS_STATUS.get(int(info["status_val"]), Status.FAILED)
-    x = np.array(res["x"], dtype=float)
-    # the slack of the rows -lam + s = 0 (s >= 0, contact_sign_rows) is lam projected onto
-    # lam >= 0, with exact zeros where the contact is inactive: a better start for the
-    # repair than x's own lam, which is off by SCS's residual (tiny values of either sign
-    # would each cost the repair another round)
+    res = solve_scs(prog.P, prog.q, prog.A, prog.b, prog.cones, options.scs_eps, options.scs_max_iter,
+                    options.verbose, options.time_limit)
     lam = prog.cols["lam"]
-    x[lam] = np.asarray(res["s"])[prog.n_eq: prog.n_eq + lam.stop - lam.start]
-    return status, str(info["status"]), x, float(info["pobj"]), int(info["iter"])
+    x = res.x.copy()
+    x[lam] = res.s[prog.n_eq: prog.n_eq + lam.stop - lam.start]
+    return replace(res, x=x)
 
 
-@dataclass(frozen=True)
-class _Answer:
-    """A solver's answer to a lower-bound program, in its own words and in ours:
-    ``infeasible`` (no admissible field) and ``unbounded`` (the objective has no
-    bound below) are its certificates, whichever solver gave them."""
-
-    solver: str
-    status: Status
-    raw: str
-    x: np.ndarray
-    objective: float
-    iterations: int
-
-    @property
-    def infeasible(self) -> bool:
-        return self.raw in ("PrimalInfeasible", "AlmostPrimalInfeasible", "infeasible", "infeasible_inaccurate")
-
-    @property
-    def unbounded(self) -> bool:
-        return self.raw in ("DualInfeasible", "AlmostDualInfeasible", "unbounded", "unbounded_inaccurate")
-
-    @property
-    def label(self) -> str:
-        return f"{'SCS' if self.solver == 'scs' else 'Clarabel'}: {self.raw}"
-
-
-def _solve_program(disc: Discretization, prog: Program, options: LowerBoundOptions, solver: str) -> _Answer:
+def solve_program(disc: Discretization, prog: Program, options: LowerBoundOptions, solver: str) -> ConicAnswer:
     """``prog`` solved by ``solver`` ("clarabel" or "scs")."""
     if solver == "scs":
-        return _Answer(solver, *_scs(prog, options))
-    return _Answer(solver, *_clarabel(prog, options, _kkt_solver(disc, options)))
+        return _scs(prog, options)
+    conic = ConicOptions(ip_tol=options.ip_tol, max_iter=options.max_iter, verbose=options.verbose,
+                         time_limit=options.time_limit)
+    settings = clarabel_settings(conic, lower_bound_kkt_solver(disc, options))
+    return solve_clarabel(prog.P, prog.q, prog.A, prog.b, prog.cones, settings)
 
 
-def _field(s: _Setup, prog: Program, x: np.ndarray, force: float) -> StaticField:
+def program_field(s: _Setup, prog: Program, x: np.ndarray, force: float) -> StaticField:
     """User-unit field from program unknowns (eta left at zero)."""
     n, d, k = s.nd.n_elements, s.nd.dim, s.nd.k
     S = s.units.stress
@@ -902,10 +389,10 @@ def _field(s: _Setup, prog: Program, x: np.ndarray, force: float) -> StaticField
                        force=float(force))
 
 
-def _repaired_field(disc: Discretization, s: _Setup, prog: Program, x: np.ndarray) -> tuple[StaticField, float, int]:
+def repaired_field(disc: Discretization, s: _Setup, prog: Program, x: np.ndarray) -> tuple[StaticField, float, int]:
     """:func:`repair_static`, then (H > 0) eta raised where the corrected tau needs it."""
     x, resid, zeroed = repair_static(prog, x)
-    field = _field(s, prog, x, disc.force)
+    field = program_field(s, prog, x, disc.force)
     if prog.cols["eta"] is not None:
         vm = von_mises(field.tau.reshape(-1, disc.k)).reshape(field.eta.shape)
         eta = x[prog.cols["eta"]].reshape(field.eta.shape) / prog.weights[:, None] * s.units.stress
@@ -935,12 +422,12 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
     options = LowerBoundOptions.of(options)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
-    s = _setup(disc, options)
+    s = lower_bound_setup(disc, options)
     solver = lower_bound_solver(disc, options)
     m = disc.material
     nd = s.nd
     if m.hardening == 0:
-        margin = _yield_margin(solver, options)
+        margin = yield_margin(solver, options)
         nd = replace(nd, problem=replace(nd.problem, material=replace(nd.material, yield_stress=nd.material.yield_stress * (1 - margin))))
     q_nd = s.psi.q / (s.units.displacement * s.units.length ** (disc.dim - 1))
     timings["setup"] = time.perf_counter() - t0
@@ -951,7 +438,7 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
         t1 = time.perf_counter()
         prog = progs[with_yield] = lower_bound_program(nd_, s.topo, s.grads, q_nd, with_yield=with_yield)
         t2 = time.perf_counter()
-        ans = _solve_program(disc, prog, options, solver)
+        ans = solve_program(disc, prog, options, solver)
         timings["assemble"] = timings.get("assemble", 0.0) + t2 - t1
         timings["solve"] = timings.get("solve", 0.0) + time.perf_counter() - t2
         tau = ans.x[prog.cols["tau"]].reshape(-1, nd_.k) / np.repeat(prog.weights, nd_.dim + 1)[:, None]
@@ -967,7 +454,7 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
         raise InputError("load.force", f"the lower-bound program failed ({ans.label}); no bound")
 
     t1 = time.perf_counter()
-    field, resid, zeroed = _repaired_field(disc, s, prog, x)
+    field, resid, zeroed = repaired_field(disc, s, prog, x)
     timings["repair"] = time.perf_counter() - t1
     t1 = time.perf_counter()
     cert = certify_static(disc, field, options.tol)
@@ -1004,12 +491,12 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     timings: dict[str, float] = {}
     m = disc.material
     area = facet_measure(disc.mesh.points[facet_topology(disc.mesh, disc.problem.boundary).contact_facets]).sum()
-    s = _setup(disc, options, force=m.yield_stress * area, limit=True)  # stress unit = sigma_y
+    s = lower_bound_setup(disc, options, force=m.yield_stress * area, limit=True)  # stress unit = sigma_y
     prog = lower_bound_program(s.nd, s.topo, s.grads, np.zeros_like(s.psi.q), limit=True)
     timings["setup"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     solver = lower_bound_solver(disc, options, limit=True)
-    ans = _solve_program(disc, prog, options, solver)
+    ans = solve_program(disc, prog, options, solver)
     status, x, iters = ans.status, ans.x, ans.iterations
     timings["solve"] = time.perf_counter() - t1
     F_solver = float(x[prog.cols["force"]] * s.units.force) if x.size else float("nan")
@@ -1025,7 +512,7 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     t1 = time.perf_counter()
     x, resid, zeroed = repair_static(prog, x)
     F = float(x[prog.cols["force"]] * s.units.force)
-    field = _field(s, prog, x, F)
+    field = program_field(s, prog, x, F)
     vm = von_mises(field.tau.reshape(-1, disc.k))
     scale = min(1.0, m.yield_stress / vm.max(initial=0.0)) if vm.max(initial=0.0) > 0 else 1.0
     field = replace(field, tau=field.tau * scale, lam=field.lam * scale, force=F * scale)

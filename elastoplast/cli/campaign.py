@@ -354,7 +354,7 @@ def adaptive_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
     import dataclasses
 
     from elastoplast.adapt.loop import AdaptOptions, adapt
-    from elastoplast.bounds.upper import gap_fields
+    from elastoplast.bounds.bracket import gap_fields
     from elastoplast.mesh.base import write_mesh
     from elastoplast.io.output import json_text, write_files
     from elastoplast.certificate.solution import Status

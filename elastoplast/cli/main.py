@@ -210,7 +210,7 @@ def _solve(args: argparse.Namespace) -> int:
 
 
 def _bounds(args: argparse.Namespace) -> int:
-    from elastoplast.bounds.upper import certified_bounds, gap_fields
+    from elastoplast.bounds.bracket import certified_bounds, gap_fields
     from elastoplast.bounds.lower import SEQUENCE_MEMORY_FACTOR, LowerBoundOptions, check_lower_bound_size
     from elastoplast.io.output import write_results
     from elastoplast.certificate.solution import Status

@@ -17,13 +17,14 @@ from scipy.sparse.csgraph import connected_components
 from elastoplast.limits import check_mesh_size
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.material import Material, n_components
-from elastoplast.mesh.base import Mesh, _boundary_facets
+from elastoplast.mesh.base import Mesh
+from elastoplast.mesh.topology import boundary_facets
 from elastoplast.problem.definition import Problem
 
 INV_SQRT2 = 1.0 / np.sqrt(2.0)
 
 # Mandel rows of eps = sym(grad u) as (component, derivative, weight) triples.
-_STRAIN_ROWS = {
+STRAIN_ROWS = {
     2: [[(0, 0, 1.0)], [(1, 1, 1.0)], [], [(0, 1, INV_SQRT2), (1, 0, INV_SQRT2)]],
     3: [
         [(0, 0, 1.0)],
@@ -142,7 +143,7 @@ class Discretization:
         return replace(self, problem=replace(self.problem, force=value))
 
 
-def _element_geometry(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+def element_geometry(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
     """``(volumes, gradients)``; refuses degenerate and inverted simplices."""
     d = mesh.dim
     X = mesh.points[mesh.cells]
@@ -184,14 +185,14 @@ def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, ch
     row by row as CSR.
 
     ``position`` gives the free-dof number of every dof (-1 where fixed). Each
-    row ``element * k + c`` holds the terms of :data:`_STRAIN_ROWS` at the
+    row ``element * k + c`` holds the terms of :data:`STRAIN_ROWS` at the
     element's free dofs, so the CSR arrays are written directly, in chunks of
     elements, without a COO sort or a column slice: at a million tetrahedra
     this takes a few seconds and about the size of B itself, against 16 s and
     three copies. Indices are 32-bit while they fit.
     """
     d, n = mesh.dim, mesh.n_elements
-    rows = _STRAIN_ROWS[d]
+    rows = STRAIN_ROWS[d]
     k, m = len(rows), d + 1
     width = max(len(t) for t in rows) * m
     n_free = int(position.max(initial=-1)) + 1
@@ -218,7 +219,7 @@ def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, ch
     return B
 
 
-def _rigid_motions(points: np.ndarray) -> np.ndarray:
+def rigid_motions(points: np.ndarray) -> np.ndarray:
     """Basis ``(n_nodes * d, r)`` of infinitesimal rigid motions at the nodes."""
     n, d = points.shape
     x = points - points.mean(axis=0)
@@ -247,7 +248,7 @@ def _check_no_rigid_motion(mesh: Mesh, fixed_mask: np.ndarray) -> None:
     n_parts, labels = connected_components(adj, directed=False)
     for part in range(n_parts):
         nodes = np.flatnonzero(labels == part)
-        R = _rigid_motions(mesh.points[nodes])
+        R = rigid_motions(mesh.points[nodes])
         mask = fixed_mask.reshape(-1, d)[nodes].ravel()
         Rf = R[mask]
         scale = np.linalg.norm(R, axis=0)
@@ -268,7 +269,7 @@ def _check_no_rigid_motion(mesh: Mesh, fixed_mask: np.ndarray) -> None:
 def _flat_bottom_area(mesh: Mesh, tol: float) -> np.ndarray:
     """Lumped area of the boundary lying in ``x_d = 0`` at each node."""
     d = mesh.dim
-    facets = _boundary_facets(mesh.cells)
+    facets = boundary_facets(mesh.cells)
     on_plane = np.all(np.abs(mesh.points[facets][:, :, -1]) <= tol, axis=1)
     facets = facets[on_plane]
     X = mesh.points[facets][:, :, :-1]  # in-plane coordinates
@@ -328,7 +329,7 @@ def discretize(problem: Problem) -> Discretization:
     mesh = problem.mesh
     d = mesh.dim
     check_mesh_arrays(mesh)
-    volumes, grads = _element_geometry(mesh)
+    volumes, grads = element_geometry(mesh)
 
     bnd = problem.boundary
     fixed_mask = np.zeros((mesh.n_nodes, d), dtype=bool)

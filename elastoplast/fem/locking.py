@@ -4,10 +4,11 @@ A mesh locks when the incompressible plastic flow it must carry has no P1 repres
 H = 0 there (:func:`check_perfect_plasticity`)."""
 
 from __future__ import annotations
+
 import numpy as np
+
 from elastoplast.errors import InputError
 from elastoplast.mesh.topology import boundary_facets, unique_rows
-
 
 CROSSED_TOLERANCE = 1e-6  # |sin| of the angle between the two halves of a crossing line
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from elastoplast.fem.discretize import _STRAIN_ROWS, Discretization, _rigid_motions, element_jacobians, shape_gradients
+from elastoplast.fem.discretize import STRAIN_ROWS, Discretization, rigid_motions, element_jacobians, shape_gradients
 
 #: elements per chunk of the assembly: bounds its temporaries (a chunk of 3D
 #: element matrices is 2^16 * 144 doubles = 75 MB)
@@ -132,7 +132,7 @@ def strain_matrices(grads: np.ndarray) -> np.ndarray:
     """Element strain matrices ``B_T (n, k, (d+1) d)`` (Mandel rows, local dofs
     ``a * d + component``) from the shape gradients ``(n, d+1, d)``."""
     n, m, d = grads.shape
-    rows = _STRAIN_ROWS[d]
+    rows = STRAIN_ROWS[d]
     B = np.zeros((n, len(rows), m, d))
     for c, terms in enumerate(rows):
         for comp, der, w in terms:
@@ -190,7 +190,7 @@ def near_null_space(lay: BlockLayout) -> np.ndarray:
     every stiffness-type matrix here (the clamped body has none exactly, but
     they are the smooth, low-energy modes multigrid must coarsen well).
     Rotations are scaled to the size of the translations."""
-    modes = _rigid_motions(lay.points)
+    modes = rigid_motions(lay.points)
     return modes / np.linalg.norm(modes, axis=0)
 
 

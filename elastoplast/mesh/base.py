@@ -128,7 +128,6 @@ def _crossed_triangles(points: np.ndarray, shape: tuple[int, ...]) -> tuple[np.n
     return points, cells
 
 
-_boundary_facets = boundary_facets  # facets that belong to exactly one simplex, each row sorted
 
 
 def structured_mesh(
@@ -174,7 +173,7 @@ def structured_mesh(
     det = np.linalg.det(np.swapaxes(X[:, 1:] - X[:, :1], 1, 2))
     cells[det < 0, :2] = cells[det < 0, 1::-1]
 
-    facets = _boundary_facets(cells)
+    facets = boundary_facets(cells)
     fx = points[facets]  # (nf, d, d)
     tol = 1e-9 * max(size)
     names = ["xmin", "xmax", "ymin", "ymax"][: 2 * (dim - 1)]

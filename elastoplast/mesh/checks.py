@@ -1,4 +1,4 @@
-"""Input checks that look at more than one value: files, memory, mesh topology, locking.
+"""Checks that a mesh file holds one connected, conforming body with valid facet groups.
 
 Every check raises :class:`InputError` naming the field the user wrote (``mesh.file``,
 ``mesh.divisions``, ``material.hardening``, ...) with a one-line message, or warns
@@ -18,26 +18,6 @@ from scipy.sparse.csgraph import connected_components
 
 from elastoplast.errors import InputError
 from elastoplast.mesh.topology import element_facets, locate_rows, outward_facet_normals, unique_rows
-
-# ----------------------------------------------------------------------------
-# files
-# ----------------------------------------------------------------------------
-
-
-# ----------------------------------------------------------------------------
-# memory
-# ----------------------------------------------------------------------------
-
-
-# Bytes per element of the mesh and discretisation build at its peak (measured, see
-# discretization_bytes)
-_BUILD_BYTES_PER_ELEMENT = {2: 770, 3: 1650}
-# meshio's peak while reading, per byte of file, by suffix (measured, see mesh_read_bytes)
-MESH_READ_FACTORS = {".msh": 8, ".vtk": 4, ".vtu": 16}
-MESH_READ_DEFAULT_FACTOR = 16
-# An element count beyond any machine, refused without further arithmetic.
-MAX_ELEMENTS = 2**40
-
 
 # ----------------------------------------------------------------------------
 # mesh topology (files): one connected, conforming body

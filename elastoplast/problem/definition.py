@@ -81,7 +81,7 @@ class _FloatConstants(ast.NodeTransformer):
         return ast.copy_location(ast.Name(id=name, ctx=ast.Load()), node)
 
 
-def _compile_expression(expr: str, dim: int, fieldname: str):
+def compile_expression(expr: str, dim: int, fieldname: str):
     """Compile a formula in x (and y in 3D) allowing only arithmetic and numpy maths.
 
     Returns ``(code, constants)``: evaluate with ``eval(code, {"__builtins__": {}},
@@ -199,7 +199,7 @@ class Obstacle:
                 return _check_psi(r2 / (2.0 * self.radius), xp, "the paraboloid", f"{field}.radius", self.center)
         if self.shape == "flat":
             return np.zeros(xp.shape[0])
-        code, constants = _compile_expression(self.expression, self.dim, f"{field}.expression")
+        code, constants = compile_expression(self.expression, self.dim, f"{field}.expression")
         env = dict(_SAFE_FUNCS, **constants, x=xp[:, 0].copy())
         if self.dim == 3:
             env["y"] = xp[:, 1].copy()
@@ -331,7 +331,7 @@ def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle") -> Obsta
         expression = section.get("expression")
         if not isinstance(expression, str):
             raise InputError(f"{prefix}.expression", "a formula string is required for shape = 'expression'")
-        _compile_expression(expression, dim, f"{prefix}.expression")
+        compile_expression(expression, dim, f"{prefix}.expression")
     return Obstacle(shape=shape, dim=dim, radius=radius, center=tuple(center), expression=expression)
 
 

@@ -3,7 +3,7 @@
 The lower bound needs ``int_f lam psi`` over-estimated on every contact facet. For
 ``shape = "expression"`` nothing is known about convexity, so psi is enclosed by
 interval arithmetic on the expression's syntax tree (the same restricted grammar
-as :func:`elastoplast.problem.definition._compile_expression`), over boxes covering pieces of
+as :func:`elastoplast.problem.definition.compile_expression`), over boxes covering pieces of
 each facet. Every operation rounds outward: ``+ - * /`` and ``sqrt`` (correctly
 rounded in IEEE arithmetic) by one ulp, library functions (exp, log, sin, ...,
 within a few ulps of the exact value in glibc) by ``LIBM_ULPS`` relative units of
@@ -21,7 +21,7 @@ import ast
 
 import numpy as np
 
-from elastoplast.problem.definition import _compile_expression
+from elastoplast.problem.definition import compile_expression
 
 #: relative widening of library-function results, in units of machine epsilon
 LIBM_ULPS = 4.0
@@ -277,7 +277,7 @@ def enclose(expression: str, dim: int, lo: np.ndarray, hi: np.ndarray) -> tuple[
 
     Raises :class:`Unbounded` with the reason when no finite enclosure is found.
     """
-    code = _compile_expression(expression, dim, "obstacle.expression")  # validates the grammar
+    code = compile_expression(expression, dim, "obstacle.expression")  # validates the grammar
     del code
     tree = ast.parse(expression, mode="eval")
     env = {"x": (lo[:, 0], hi[:, 0])}
@@ -292,7 +292,7 @@ def enclose(expression: str, dim: int, lo: np.ndarray, hi: np.ndarray) -> tuple[
     return low, up
 
 
-def _pieces(dim: int, m: int) -> np.ndarray:
+def facet_pieces(dim: int, m: int) -> np.ndarray:
     """Barycentric vertices ``(P, dim, dim)`` of the regular subdivision of a facet
     (a segment in 2D: m pieces; a triangle in 3D: m^2 pieces), all of equal measure."""
     if dim == 2:
@@ -313,7 +313,7 @@ def enclose_on_simplices(obstacle, X: np.ndarray, measure: np.ndarray, m: int) -
     """Weights ``q (n_f, d)`` with ``q_fa >= int_f psi b_a`` on facets with in-plane vertex
     coordinates ``X (n_f, d, d-1)`` and measures ``measure``.
 
-    Each facet is cut into ``P`` pieces of equal measure (:func:`_pieces`); psi is
+    Each facet is cut into ``P`` pieces of equal measure (:func:`facet_pieces`); psi is
     enclosed on the bounding box of each piece (widened by 1e-12 of the facet size
     against the rounding of the piece corners) and
     ``q_fa = sum_p max_p psi * (|f| / P) * mean of b_a over the piece's vertices``
@@ -321,7 +321,7 @@ def enclose_on_simplices(obstacle, X: np.ndarray, measure: np.ndarray, m: int) -
     be enclosed.
     """
     dim = X.shape[1]
-    bary = _pieces(dim, m)  # (P, d, d)
+    bary = facet_pieces(dim, m)  # (P, d, d)
     corners = np.einsum("pva,fac->fpvc", bary, X)  # (n_f, P, d vertices, d-1)
     size = np.abs(X.max(axis=1) - X.min(axis=1)).max(axis=1)
     pad = (1e-12 * size + _TINY)[:, None, None]

@@ -28,6 +28,7 @@ from elastoplast.fem.material import SQRT_3_2, return_mapping, von_mises
 from elastoplast.problem.options import SolverOptions, option
 from elastoplast.solvers.polish import newton_polish
 from elastoplast.certificate.solution import Solution, Status, make_solution
+from elastoplast.solvers.backends import ConicAnswer, clarabel_settings, solve_clarabel
 
 
 @dataclass(frozen=True)
@@ -174,38 +175,8 @@ def kkt_solver(disc: Discretization, options: ConicOptions) -> str:
     return "faer" if disc.dim == 3 and disc.n_elements >= FAER_FROM_ELEMENTS_3D else "qdldl"
 
 
-def clarabel_settings(options: ConicOptions, solver: str = "qdldl"):
-    import clarabel
-
-    s = clarabel.DefaultSettings()
-    s.verbose = options.verbose
-    s.max_iter = options.max_iter
-    s.time_limit = float("inf") if options.time_limit is None else options.time_limit
-    s.tol_gap_abs = options.ip_tol
-    s.tol_gap_rel = options.ip_tol
-    s.tol_feas = options.ip_tol
-    s.tol_ktratio = min(1e-6, options.ip_tol)
-    s.direct_solve_method = solver
-    return s
-
-
-_CLARABEL_STATUS = {
-    "Solved": Status.CONVERGED,
-    "AlmostSolved": Status.CONVERGED,
-    "PrimalInfeasible": Status.INFEASIBLE,
-    "AlmostPrimalInfeasible": Status.INFEASIBLE,
-    # (S) and the lower-bound programs minimise a convex quadratic bounded below: a
-    # certificate of dual infeasibility (an unbounded objective) is numerical failure
-    "DualInfeasible": Status.FAILED,
-    "AlmostDualInfeasible": Status.FAILED,
-    "MaxIterations": Status.MAX_ITERATIONS,
-    "MaxTime": Status.TIME_LIMIT,
-}
-
-
-def _status(raw: str) -> tuple[Status, str]:
-    status = _CLARABEL_STATUS.get(raw, Status.FAILED)
-    msg = f"Clarabel: {raw}"
+def _status(answer: ConicAnswer) -> tuple[Status, str]:
+    status, msg = answer.status, answer.label
     if status is Status.INFEASIBLE:
         msg += " (no equilibrium stress field inside the yield surface carries F: the force exceeds the limit load)"
     return status, msg
@@ -258,8 +229,6 @@ def solve_conic(disc: Discretization, options: ConicOptions = ConicOptions()) ->
     With Clarabel's KKT convention ``P x + q + A^T z = 0`` the displacements are
     ``u = -z_equilibrium`` and ``U = -z_force`` (checked by the certificate).
     """
-    import clarabel
-
     timings: dict[str, float] = {"setup": 0.0, "solve": 0.0}
 
     @elastic_first
@@ -267,11 +236,11 @@ def solve_conic(disc: Discretization, options: ConicOptions = ConicOptions()) ->
         t0 = time.perf_counter()
         P, q, A, b, cones, lay = stress_form_data(nd, with_yield)
         t1 = time.perf_counter()
-        res = clarabel.DefaultSolver(P, q, A, b, cones, clarabel_settings(options, kkt_solver(nd, options))).solve()
+        res = solve_clarabel(P, q, A, b, cones, clarabel_settings(options, kkt_solver(nd, options)))
         timings["setup"] += t1 - t0
         timings["solve"] += time.perf_counter() - t1
-        status, msg = _status(str(res.status).split(".")[-1])
-        x, z = np.asarray(res.x), np.asarray(res.z)
+        status, msg = _status(res)
+        x, z = res.x, res.z
         n, w = nd.n_elements, element_weights(nd)
         sigma = x[lay["tau"]].reshape(n, nd.k) / w[:, None]
         xi = x[lay["xi"]] / w if lay["xi"] is not None else np.zeros(n)

@@ -1,0 +1,304 @@
+"""The certified bracket of the continuous problem: energy, the rigid body's displacement U, the stress error, and the local gaps (docs/bounds.md).
+
+An upper bound (:mod:`elastoplast.bounds.upper`) and a lower bound (:mod:`elastoplast.bounds.lower`)
+of the same problem bracket its energy; both at the forces F - delta and F + delta bracket U
+through the concavity of the energy in F; the gap bounds the energy norm of the stress
+error and, split element by element, is the indicator that drives adaptivity."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from elastoplast.bounds.upper import (
+    BRACKET_RETRIES,
+    GAP_FLOOR,
+    UpperBound,
+    best_upper_bound,
+)
+from elastoplast.errors import InputError, expect
+from elastoplast.fem.discretize import Discretization
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """``energy_lower = -J <= Pi* <= energy_upper = Pi`` and what follows from it.
+
+    ``energy_gap_rel = (upper - lower) / |upper|``; ``stress_error_bound =
+    sqrt(2 gap)`` bounds ``‖σ̂ - τ̂‖`` (τ̂ the lower bound's field) and
+    ``‖σ̂ - R(ε(v))‖`` in the energy norm, ``stress_error_bound_rel`` divides it by
+    ``sqrt([R(ε(v)), R(ε(v))])``. ``element_gap`` = ``∫_T [W(ε(v)) + 1/2 Aτ:τ +
+    η²/2H - τ:ε(v)]`` and ``facet_gap`` = ``∫_f λ (v_d - V) + Σ_a q_fa λ_a`` (q the
+    lower bound's obstacle weights, ``∫_f λ I_h psi`` for a convex psi) on the
+    lower bound's contact facets: each ≥ 0, and they sum to ``upper - lower``
+    for an exactly admissible stress field. They are indicators; only the sum is a
+    proof.
+    """
+
+    energy_lower: float
+    energy_upper: float
+    energy_gap_rel: float
+    stress_error_bound: float
+    stress_error_bound_rel: float
+    bounds_certified: bool
+    element_gap: np.ndarray = field(repr=False)
+    facet_gap: np.ndarray = field(repr=False)
+    contact_facets: np.ndarray = field(repr=False)
+
+    @property
+    def energy_gap(self) -> float:
+        return self.energy_upper - self.energy_lower
+
+    def as_dict(self) -> dict:
+        """The keys ``summary.json`` gains."""
+        return {
+            "energy_lower": self.energy_lower,
+            "energy_upper": self.energy_upper,
+            "energy_gap_rel": self.energy_gap_rel,
+            "stress_error_bound": self.stress_error_bound,
+            "stress_error_bound_rel": self.stress_error_bound_rel,
+            "bounds_certified": self.bounds_certified,
+        }
+
+
+def combine(upper: UpperBound, lower) -> Bounds:
+    """The bracket of an :class:`UpperBound` and a lower bound
+    (:class:`elastoplast.bounds.lower.LowerBound`) on the same mesh, with the local
+    gap terms integrated exactly (τ, η linear per element and ε(v) constant; λ and
+    ``v_d - V`` linear on a facet)."""
+    from elastoplast.bounds.static import mass_matrix
+    from elastoplast.mesh.topology import facet_measure
+
+    lo, hi = -float(lower.J), upper.Pi
+    gap = hi - lo
+    local = lower.local
+    element = upper.element_energy + local.element_energy - np.einsum("ek,ek->e", local.element_stress, upper.strain)
+    cf = lower.field.contact_facets
+    d = upper.points.shape[1]
+    w = upper.u[cf, d - 1] - upper.V  # v_d - V at the facet vertices
+    measure = facet_measure(upper.points[cf])
+    facet = measure * np.einsum("fa,ab,fb->f", lower.field.lam, mass_matrix(d - 1), w) + local.facet_psi_work
+    err = float(np.sqrt(2.0 * max(gap, 0.0)))
+    return Bounds(
+        energy_lower=lo,
+        energy_upper=hi,
+        energy_gap_rel=float(gap / abs(hi)) if hi != 0 else np.inf,
+        stress_error_bound=err,
+        stress_error_bound_rel=err / upper.stress_norm if upper.stress_norm > 0 else np.inf,
+        bounds_certified=bool(upper.certified and lower.certified),
+        element_gap=element,
+        facet_gap=facet,
+        contact_facets=cf,
+    )
+
+
+def energy_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
+                  lower_options=None, **options) -> Bounds:
+    """``-J <= Pi* <= Pi`` on ``disc``: :func:`best_upper_bound` of ``solution``
+    (solved by ``method`` when not given) and the lower bound of
+    :func:`elastoplast.bounds.lower.solve_lower_bound`."""
+    return certified_bounds(disc, solution, method, conservative, lower_options, bracket=False, **options).bounds
+
+
+def bounds_at(disc: Discretization, **kwargs) -> Callable[[float], tuple[float, float]]:
+    """``F -> (lo, hi)`` by :func:`energy_bounds` on ``disc`` at load F (for :func:`u_bracket`)."""
+
+    def run(force: float) -> tuple[float, float]:
+        b = energy_bounds(disc.with_force(force), **kwargs)
+        return b.energy_lower, b.energy_upper
+
+    return run
+
+
+def u_bracket(disc: Discretization, delta: float, solve_bounds_at: Callable[[float], tuple[float, float]]) -> tuple[float, float]:
+    """``(U_lower, U_upper)`` containing the continuum U at ``disc.force``.
+
+    ``Pi*(F)`` is a minimum of functions affine in F, so it is concave with
+    supergradient ``-U(F)``: ``Pi*(F') <= Pi*(F) - U(F) (F' - F)``. With
+    ``lo <= Pi* <= hi`` from ``solve_bounds_at(F) -> (lo, hi)`` at ``F - delta``,
+    F and ``F + delta``:
+
+        U(F) <= (hi(F) - lo(F + delta)) / delta,   U(F) >= (lo(F - delta) - hi(F)) / delta.
+    """
+    F = disc.force
+    if not 0 < delta < F:
+        from elastoplast.errors import InputError
+
+        raise InputError("delta", f"must lie in (0, F) = (0, {F:g}), got {delta!r}")
+    lo_m, _ = solve_bounds_at(F - delta)
+    lo_0, hi_0 = solve_bounds_at(F)
+    lo_p, _ = solve_bounds_at(F + delta)
+    return (lo_m - hi_0) / delta, (hi_0 - lo_p) / delta
+
+
+def choose_delta(force: float, gap: float, dU_dF: float) -> float:
+    """The δ that minimises the predicted width of :func:`u_bracket`.
+
+    With ``lo = Pi* - e_lo`` and ``hi = Pi* + e_hi``, the width is
+
+        [2 Pi*(F) - Pi*(F + δ) - Pi*(F - δ)] / δ + [2 e_hi(F) + e_lo(F + δ) + e_lo(F - δ)] / δ
+        ≈ U'(F) δ + G / δ,
+
+    since ``Pi*'' = -U'``. Taking the gaps at the three loads equal and split
+    evenly, ``G ≈ 2 gap``, so ``δ* = sqrt(2 gap / U')`` and the width is about
+    ``2 sqrt(2 gap U')``. ``U'`` is estimated from discrete solutions
+    (:func:`displacement_slope`). δ is kept below ``F / 2``.
+    """
+    if not (gap > 0 and dU_dF > 0):
+        return 0.5 * force
+    return float(min(np.sqrt(2.0 * gap / dU_dF), 0.5 * force))
+
+
+def displacement_slope(disc: Discretization, method: str = "conic", step: float = 0.05, **options) -> float:
+    """``dU/dF`` of the discrete problem by a central difference ``±step F``
+    (used only to choose δ, so its accuracy does not matter for the bound)."""
+    from elastoplast.solvers.registry import solve
+
+    F = disc.force
+    U = [solve(disc.with_force(F * (1 + s)), method, **options).U for s in (-step, step)]
+    return float((U[1] - U[0]) / (2.0 * step * F))
+
+
+@dataclass(frozen=True)
+class BoundsReport:
+    """The energy bracket of one problem (:class:`Bounds`), the U bracket from the
+    lower bounds at ``F -/+ delta`` (NaN when not computed), and the two sides it
+    was built from, for their messages and local terms."""
+
+    bounds: Bounds
+    upper: UpperBound = field(repr=False)
+    lower: object = field(repr=False)
+    U_lower: float = float("nan")
+    U_upper: float = float("nan")
+    delta: tuple[float, float] = (float("nan"), float("nan"))
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def certified(self) -> bool:
+        """The energy bracket is a proof; with a U bracket, its two extra lower bounds are too."""
+        return self.bounds.bounds_certified and self.bracket_certified
+
+    bracket_certified: bool = True
+
+    def as_dict(self) -> dict:
+        """The keys ``summary.json`` gains (docs/bounds.md)."""
+        return {
+            **self.bounds.as_dict(),
+            "bounds_certified": self.certified,
+            "U_lower": self.U_lower,
+            "U_upper": self.U_upper,
+            "U_bracket_delta": self.delta[0],
+            "U_bracket_delta_above": self.delta[1],
+            "upper_bound": {"penetration": self.upper.penetration, "shift": self.upper.shift, "lift": self.upper.lift,
+                            "certified": self.upper.certified, "message": self.upper.message},
+            "lower_bound": {"certified": self.lower.certified, "status": self.lower.status.value,
+                            "message": self.lower.message, "certificate_worst": self.lower.certificate.worst,
+                            "iterations": self.lower.iterations},
+            "bounds_timings": self.timings,
+        }
+
+
+def certified_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
+                     lower_options=None, *, bracket: bool = True, **options) -> BoundsReport:
+    """The energy bracket of ``disc`` and, with ``bracket``, the U bracket.
+
+    U bracket (:func:`u_bracket`): only the lower bounds are needed at ``F -/+
+    delta`` (``U >= (lo(F - delta) - hi(F)) / delta``, ``U <= (hi(F) - lo(F + delta'))
+    / delta'``), so two more equilibrium-element programs and no P1 solve; delta is
+    :func:`choose_delta` with the secant ``U / F`` for ``dU/dF`` (delta only sets
+    how tight the bracket is, never whether it holds). The two inequalities hold
+    for any delta each: with H = 0 and F + delta above the mesh's static limit
+    load, ``delta'`` is divided by 4 until the equilibrium element carries the
+    load (at most :data:`BRACKET_RETRIES` times; else ``U_upper = inf``, and the
+    bracket is not called certified).
+    """
+    import time
+
+    from elastoplast.bounds.lower import LowerBoundOptions, solve_lower_bound
+    from elastoplast.certificate.solution import Solution
+    from elastoplast.solvers.registry import solve
+
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    if solution is not None:
+        expect(solution, Solution, "solution", "ep.solve(disc, method)")
+    lower_options = LowerBoundOptions.of(lower_options, "lower_options")
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    sol = solve(disc, method, **options) if solution is None else solution
+    upper = best_upper_bound(disc, sol, method, conservative, **options)
+    t1 = time.perf_counter()
+    lower = solve_lower_bound(disc, lower_options)
+    t2 = time.perf_counter()
+    timings.update(upper=t1 - t0, lower=t2 - t1)
+    b = combine(upper, lower)
+    if not bracket:
+        return BoundsReport(bounds=b, upper=upper, lower=lower, timings=timings)
+    U_lo, U_hi, delta, ok = u_bracket_of(disc, b, sol.U, lower_options)  # delta: (below F, above F)
+    timings["bracket"] = time.perf_counter() - t2
+    return BoundsReport(bounds=b, upper=upper, lower=lower, U_lower=U_lo, U_upper=U_hi, delta=delta, timings=timings,
+                        bracket_certified=ok)
+
+
+def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
+                 lower_options=None) -> tuple[float, float, tuple[float, float], bool]:
+    """``(U_lower, U_upper, (delta, delta'), certified)``: the U bracket of :func:`u_bracket` from
+    the energy bracket ``b`` at F and two more lower bounds, at ``F - delta`` and
+    ``F + delta'`` (no P1 solve); see :func:`certified_bounds` for the choice of
+    delta and the shrinking of ``delta'``."""
+    from elastoplast.bounds.lower import LowerBoundOptions, solve_lower_bound
+
+    lower_options = LowerBoundOptions.of(lower_options, "lower_options")
+    F = disc.force
+    # the gap used to choose delta never counts as less than the round-off of the bounds
+    # themselves, so that (round-off of J) / delta stays far below the bracket's width
+    gap = max(b.energy_gap, GAP_FLOOR * abs(b.energy_upper))
+    delta = choose_delta(F, gap, U_h / F if U_h > 0 else 0.0)
+    try:
+        minus = solve_lower_bound(disc.with_force(F - delta), lower_options)
+    except InputError as exc:  # memory taken since the first program was checked: no bracket, said so
+        if exc.field != "mesh":
+            raise
+        warnings.warn(f"no U bracket: {exc.message}")
+        return math.nan, math.nan, (delta, delta), False
+    # with H = 0, F + delta may lie above the mesh's static limit load (no admissible
+    # field there): each side's secant holds for its own delta, so shrink that one
+    plus, delta_plus = None, delta
+    for _ in range(BRACKET_RETRIES):
+        try:
+            plus = solve_lower_bound(disc.with_force(F + delta_plus), lower_options)
+            break
+        except InputError as exc:
+            if exc.field == "mesh":
+                warnings.warn(f"no U bracket: {exc.message}")
+                return math.nan, math.nan, (delta, delta_plus), False
+            if exc.field != "load.force":
+                raise
+            delta_plus /= 4.0
+    U_lo = (minus.lower - b.energy_upper) / delta
+    U_hi = (b.energy_upper - plus.lower) / delta_plus if plus is not None else float("inf")
+    certified = minus.certified and plus is not None and plus.certified
+    return U_lo, U_hi, (delta, delta_plus), certified
+
+
+def element_indicators(disc: Discretization, bounds: Bounds) -> np.ndarray:
+    """The local gap of each element plus the gap of the contact facets it owns
+    (clipped at 0: the terms are >= 0 for an exactly admissible field, round-off
+    aside): the indicator adaptive refinement marks on."""
+    from elastoplast.mesh.topology import facet_topology
+
+    topo = facet_topology(disc.mesh, disc.problem.boundary)
+    eta = np.maximum(np.asarray(bounds.element_gap, dtype=float), 0.0)
+    owners = topo.boundary_elements[topo.contact]
+    np.add.at(eta, owners, np.maximum(np.asarray(bounds.facet_gap, dtype=float), 0.0))
+    return eta
+
+
+def gap_fields(disc: Discretization, bounds: Bounds) -> dict:
+    """What ``solution.vtu`` gains (:func:`elastoplast.io.output.write_vtu` keywords):
+    the local gap per element and per contact facet, and the marking indicator."""
+    return {"cell_data": {"gap": bounds.element_gap, "gap_indicator": element_indicators(disc, bounds)},
+            "facets": (bounds.contact_facets, {"gap": bounds.facet_gap})}

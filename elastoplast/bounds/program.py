@@ -1,0 +1,166 @@
+"""The lower bound's conic program: the equilibrium element in energy-normalised unknowns (docs/bounds.md).
+
+Unknowns are the vertex values of linear stresses (and hardening stresses when H > 0)
+per element and the contact tractions at the vertices of the contact facets; the rows
+are equilibrium in each element, traction continuity across interior facets, the
+boundary conditions, the force balance, and one yield cone per element vertex."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from elastoplast.bounds.static import mass_matrix, traction_operator
+from elastoplast.fem.discretize import Discretization
+from elastoplast.mesh.topology import FacetTopology
+from elastoplast.solvers.conic import yield_cone_rows
+
+
+@dataclass(frozen=True)
+class Program:
+    """Clarabel data ``(P, q, A, b, cones)``; the first ``n_eq`` rows of A are the
+    equality rows; ``weights`` are the element weights ``w_T = sqrt(|T|/mean|T|)`` of
+    the unknowns ``tau_hat = w_T tau``, ``eta_hat = w_T eta``, ``lam_hat = w_T lam``
+    (T the element of the contact facet); ``cols`` the column ranges by name."""
+
+    P: sp.csc_matrix
+    q: np.ndarray
+    A: sp.csc_matrix
+    b: np.ndarray
+    cones: list
+    n_eq: int
+    weights: np.ndarray
+    lam_weights: np.ndarray
+    cols: dict
+
+
+def _block_coo(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray):
+    """Flatten broadcastable index/value arrays, dropping structural zeros."""
+    rows, cols, vals = (np.broadcast_to(a, np.broadcast_shapes(rows.shape, cols.shape, vals.shape)).ravel()
+                        for a in (rows, cols, vals))
+    keep = vals != 0.0
+    return rows[keep], cols[keep], vals[keep]
+
+
+def equality_rows(nd: Discretization, topo: FacetTopology, grads: np.ndarray, n_cols: int,
+                  lam_col: int, force_col: int | None):
+    """The equality rows ``A x = b`` in energy-normalised unknowns, every row a force.
+
+    With ``G_ea = (|T_e| / w_e) N(grad b_a)`` (d x k; note ``|f_i| n_i / d = -|T| grad b_i``
+    for the facet opposite vertex i, n its outward unit normal):
+
+    * element e: ``sum_a G_ea tau_hat_ea = 0`` (``|T| div tau = 0``);
+    * interior facet, at each facet vertex: ``G_{T,i} tau_hat_{T,a} + G_{T',i'}
+      tau_hat_{T',a'} = 0`` (the outward tractions times ``|f|/d`` cancel);
+    * boundary facet opposite vertex i of T, at facet vertex a, component j:
+      ``(G_{T,i} tau_hat_{T,a})_j = 0`` where the traction must vanish, and
+      ``(G_{T,i} tau_hat_{T,a})_d + (|f|/d) / w_T lam_hat_a = 0`` on Γ0;
+    * ``sum_f (|f|/d) sum_a lam_a = F`` (or ``- F_hat`` in column ``force_col``).
+    """
+    d, k, n = nd.dim, nd.k, nd.n_elements
+    w = np.sqrt(nd.volumes / nd.volumes.mean())
+    G = (nd.volumes / w)[:, None, None, None] * traction_operator(grads)  # (n, d+1, d, k)
+    ck = np.arange(k)
+    cr = np.arange(d)
+
+    def tau_cols(e, a):
+        return ((e * (d + 1) + a) * k)[..., None, None] + ck  # (..., 1, k)
+
+    parts = []
+    # element equilibrium
+    e = np.arange(n)[:, None]
+    a = np.arange(d + 1)[None, :]
+    parts.append(_block_coo((e * d)[:, :, None, None] + cr[:, None], tau_cols(e, a), G))
+    row = n * d
+    # interior facets
+    IE, IL, IV = topo.interior_elements, topo.interior_local, topo.interior_vertices
+    n_if = IE.shape[0]
+    f = np.arange(n_if)[:, None, None]
+    j = np.arange(d)[None, None, :]
+    rows = row + ((f * d + j) * d)[..., None, None] + cr[:, None]  # (n_if, 1, d, d, 1)
+    Gf = G[IE, IL][:, :, None]  # (n_if, 2, 1, d, k)
+    parts.append(_block_coo(rows, tau_cols(IE[:, :, None], IV), Gf))
+    row += n_if * d * d
+    # boundary facets
+    BE, BL, BV = topo.boundary_elements, topo.boundary_local, topo.boundary_vertices
+    n_bf = BE.shape[0]
+    cond = topo.zero_traction.copy()
+    cond[:, -1] |= topo.contact
+    keep = np.broadcast_to(cond[:, None, :], (n_bf, d, d))  # (facet, vertex, component)
+    row_id = np.where(keep, row + np.cumsum(keep.ravel()).reshape(keep.shape) - 1, -1)
+    Gb = G[BE, BL][:, None]  # (n_bf, 1, d, k)
+    r_, c_, v_ = _block_coo(row_id[..., None], tau_cols(BE[:, None], BV), Gb)
+    parts.append((r_[r_ >= 0], c_[r_ >= 0], v_[r_ >= 0]))
+    row += int(keep.sum())
+    # contact pressure in the vertical rows of the Γ0 facets, and the force balance
+    ci = topo.contact_index
+    share = (nd.volumes[BE[ci]] * np.linalg.norm(grads[BE[ci], BL[ci]], axis=1) / w[BE[ci]])  # (|f|/d) / w_T
+    lam_cols = lam_col + np.arange(ci.size * d).reshape(-1, d)
+    parts.append((row_id[ci, :, -1].ravel(), lam_cols.ravel(), np.repeat(share, d)))
+    parts.append((np.full(lam_cols.size, row), lam_cols.ravel(), np.repeat(share, d)))
+    b = np.zeros(row + 1)
+    if force_col is None:
+        b[row] = nd.force
+    else:
+        parts.append((np.array([row]), np.array([force_col]), np.array([-1.0])))
+    r, c, v = (np.concatenate(x) for x in zip(*parts))
+    return sp.csc_matrix((v, (r, c)), shape=(row + 1, n_cols)), b
+
+
+def lower_bound_program(nd: Discretization, topo: FacetTopology, grads: np.ndarray, q_psi: np.ndarray,
+                        limit: bool = False, with_yield: bool = True) -> Program:
+    """The equilibrium-element program on the O(1) problem ``nd`` (see
+    :func:`~elastoplast.fem.discretize.nondimensionalize`); ``grads`` the barycentric
+    gradients in its length unit, ``q_psi`` the obstacle weights in its units.
+
+    Energy mode: minimise ``1/2 sum_T sum_ab M_ab (tau_hat_a A tau_hat_b + eta_hat_a
+    eta_hat_b / H) + sum q lam`` (the exact J: ``|T| / w_T^2 = 1`` per element).
+    Limit mode: minimise ``-F_hat`` with eta = 0 and no energy. Cones: ``lam_hat >= 0``,
+    and ``sqrt(3/2)|dev tau_hat_a| <= w_T sigma_y + eta_hat_a`` at each element vertex
+    (the per-element cone of (S), :func:`~elastoplast.solvers.conic.yield_cone_rows`, applied
+    to a copy of ``nd`` whose 'elements' are the element vertices).
+    """
+    import clarabel
+
+    from elastoplast.solvers.conic import contact_sign_rows
+
+    d, k, n, m = nd.dim, nd.k, nd.n_elements, nd.material
+    nv = n * (d + 1)
+    has_eta = not limit and m.hardening > 0
+    n_lam = topo.contact_index.size * d
+    eta_col = nv * k
+    lam_col = eta_col + (nv if has_eta else 0)
+    n_cols = lam_col + n_lam + (1 if limit else 0)
+    force_col = n_cols - 1 if limit else None
+    w = np.sqrt(nd.volumes / nd.volumes.mean())
+    lam_w = np.repeat(w[topo.boundary_elements[topo.contact_index]], d)
+
+    A_eq, b_eq = equality_rows(nd, topo, grads, n_cols, lam_col, force_col)
+    A_nn, b_nn = contact_sign_rows(n_lam, lam_col, n_cols)
+    blocks = [A_eq, A_nn]
+    rhs = [b_eq, b_nn]
+    cones = [clarabel.ZeroConeT(b_eq.size), clarabel.NonnegativeConeT(n_lam)]
+    if with_yield:
+        vertex_disc = replace(nd, volumes=np.repeat(nd.volumes, d + 1))
+        A_soc, b_soc = yield_cone_rows(vertex_disc, 0, eta_col if has_eta else None, n_cols)
+        blocks.append(A_soc)
+        rhs.append(b_soc)
+        cones += [clarabel.SecondOrderConeT(k)] * nv
+
+    M = mass_matrix(d)
+    q = np.zeros(n_cols)
+    if limit:
+        P = sp.csc_matrix((n_cols, n_cols))
+        q[force_col] = -1.0
+    else:
+        pb = [sp.kron(sp.eye(n), sp.csr_matrix(np.triu(np.kron(M, m.compliance(d)))))]
+        if has_eta:
+            pb.append(sp.kron(sp.eye(n), sp.csr_matrix(np.triu(M) / m.hardening)))
+        pb.append(sp.csr_matrix((n_lam, n_lam)))
+        P = sp.block_diag(pb, format="csc")
+        q[lam_col: lam_col + n_lam] = q_psi.ravel() / lam_w
+    cols = dict(tau=slice(0, nv * k), eta=slice(eta_col, lam_col) if has_eta else None,
+                lam=slice(lam_col, lam_col + n_lam), force=force_col)
+    return Program(P, q, sp.vstack(blocks, format="csc"), np.concatenate(rhs), cones, b_eq.size, w, lam_w, cols)

@@ -1,0 +1,280 @@
+"""Statically admissible stress fields and what they certify (docs/bounds.md).
+
+A field ``(tau, eta, lam)`` with linear stresses and hardening per element and facet
+tractions ``lam`` on the contact zone gives the lower bound ``-J(tau, eta, lam) <= Pi*`` of
+the continuous problem when it is statically and plastically admissible. This module
+holds the field (:class:`StaticField`), its dual energy (:func:`dual_energy`, with
+``int lam psi`` never under-estimated through :func:`psi_weights`), and the
+solver-independent check of its admissibility (:func:`certify_static`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from elastoplast.errors import InputError
+from elastoplast.fem.discretize import STRAIN_ROWS, Discretization, element_geometry
+from elastoplast.fem.material import n_components, von_mises
+from elastoplast.mesh.topology import (
+    FacetTopology,
+    facet_measure,
+    facet_topology,
+    outward_normals,
+)
+
+#: every residual of :func:`certify_static` must be at most this (relative to its stated scale)
+CERTIFY_TOL = 1e-12
+
+
+def traction_operator(v: np.ndarray) -> np.ndarray:
+    """``N(v) (..., d, k)`` with ``N(v) tau = tau v`` for Mandel vectors ``tau``.
+
+    It is the transpose of the Mandel symmetric gradient of ``u (x) v``
+    (``STRAIN_ROWS``), since ``tau : sym(u (x) v) = (tau v) . u``. Hence also
+    ``div tau = sum_a N(grad b_a) tau_a`` for a linear field with vertex values
+    ``tau_a``. In plane strain the tau33 column is zero.
+    """
+    d = v.shape[-1]
+    out = np.zeros(v.shape[:-1] + (d, n_components(d)))
+    for c, terms in enumerate(STRAIN_ROWS[d]):
+        for comp, der, w in terms:
+            out[..., comp, c] += w * v[..., der]
+    return out
+
+
+def mass_matrix(dim: int) -> np.ndarray:
+    """``int_S b_a b_b / |S| = (1 + delta_ab) / ((n+1)(n+2))`` on a ``dim``-simplex (n = dim)."""
+    return (np.ones((dim + 1, dim + 1)) + np.eye(dim + 1)) / ((dim + 1) * (dim + 2))
+
+
+@dataclass(frozen=True)
+class PsiWeights:
+    """``q (n_cf, d)`` with ``q_fa >= int_f psi b_a`` (b_a the facet's P1 basis), so that
+    ``int_f lam psi <= sum_a q_fa lam_a`` for ``lam >= 0``; ``rigorous`` says whether
+    the inequality is proved, ``method`` how q was obtained."""
+
+    q: np.ndarray
+    rigorous: bool
+    method: str
+
+
+def psi_weights(disc: Discretization, topo: FacetTopology, subdivisions: int = 4) -> PsiWeights:
+    """Safe obstacle weights on the contact facets.
+
+    Sphere, cylinder, paraboloid and flat ψ are convex (the sphere on
+    ``|x' - c| < R``, which :meth:`Obstacle.psi` enforces at the facet vertices, hence
+    on the facets), so the P1 interpolant is above ψ on each facet and
+    ``q_fa = int_f I_h psi b_a = |f| sum_b M_ab psi_b`` exactly. For an ``expression``
+    ψ nothing is known about convexity: ψ is enclosed by interval arithmetic on each
+    of ``subdivisions**(d-1)`` pieces of every facet (:mod:`elastoplast.problem.intervals`),
+    and ``q_fa = sum_pieces max_piece psi * int_piece b_a``.
+    """
+    mesh, obstacle = disc.mesh, disc.problem.obstacle
+    nodes = topo.contact_facets
+    X = mesh.points[nodes][:, :, :-1]
+    d = disc.dim
+    measure = facet_measure(mesh.points[nodes])
+    if obstacle.shape != "expression":
+        psi = obstacle.psi(X.reshape(-1, d - 1), field="obstacle").reshape(-1, d)
+        return PsiWeights(measure[:, None] * psi @ mass_matrix(d - 1), True, "P1 interpolant of a convex psi")
+    from elastoplast.problem.intervals import enclose_on_simplices
+
+    q, reason = enclose_on_simplices(obstacle, X, measure, subdivisions)
+    if q is None:
+        psi = obstacle.psi(X.reshape(-1, d - 1), field="obstacle").reshape(-1, d)
+        return PsiWeights(measure[:, None] * psi @ mass_matrix(d - 1), False,
+                          f"P1 interpolant (not an over-estimate: {reason})")
+    return PsiWeights(q, True, f"interval enclosure on {subdivisions ** (d - 1)} pieces per facet")
+
+
+@dataclass(frozen=True)
+class StaticField:
+    """A candidate stress field of the equilibrium element, in user units.
+
+    ``tau (n_el, d+1, k)`` Mandel vertex values (in the order of ``mesh.cells``; in
+    plane strain with tau33), ``eta (n_el, d+1)`` hardening stresses at the vertices,
+    ``contact_facets (n_cf, d)`` node indices of the Γ0 facets (sorted per facet),
+    ``lam (n_cf, d)`` contact pressure at their vertices (in that node order),
+    ``force`` the F it balances.
+    """
+
+    tau: np.ndarray
+    eta: np.ndarray
+    contact_facets: np.ndarray
+    lam: np.ndarray
+    force: float
+
+
+@dataclass(frozen=True)
+class LocalTerms:
+    """Per-element and per-contact-facet pieces of J and of the weak-duality gap.
+
+    ``element_energy`` = ``1/2 int_T (A tau:tau + eta^2/H)``; ``element_stress`` =
+    ``int_T tau`` (= |T| times the vertex mean, Mandel), so ``int_T tau : eps(v) =
+    element_stress . eps_T(v)`` for P1 v; ``facet_force`` = ``int_f lam``;
+    ``facet_psi_work`` = ``sum_a q_fa lam_a >= int_f lam psi``. J is the sum of
+    ``element_energy`` and ``facet_psi_work``.
+    """
+
+    element_energy: np.ndarray
+    element_stress: np.ndarray
+    facet_force: np.ndarray
+    facet_psi_work: np.ndarray
+
+
+def local_terms(disc: Discretization, field: StaticField, psi: PsiWeights | None = None,
+                topo: FacetTopology | None = None) -> LocalTerms:
+    """The terms of :class:`LocalTerms`, integrated exactly with the P1 mass matrices."""
+    d, m = disc.dim, disc.material
+    topo = facet_topology(disc.mesh, disc.problem.boundary) if topo is None else topo
+    psi = psi_weights(disc, topo) if psi is None else psi
+    M = mass_matrix(d)
+    A = m.compliance(d)
+    tau = np.asarray(field.tau, dtype=float)
+    energy = np.einsum("ab,eai,ij,ebj->e", M, tau, A, tau)
+    if m.hardening > 0:
+        energy = energy + np.einsum("ab,ea,eb->e", M, field.eta, field.eta) / m.hardening
+    measure = facet_measure(disc.mesh.points[field.contact_facets])
+    return LocalTerms(
+        element_energy=0.5 * disc.volumes * energy,
+        element_stress=disc.volumes[:, None] * tau.mean(axis=1),
+        facet_force=measure * field.lam.mean(axis=1),
+        facet_psi_work=np.einsum("fa,fa->f", psi.q, field.lam),
+    )
+
+
+def dual_energy(disc: Discretization, field: StaticField, psi: PsiWeights | None = None) -> float:
+    """``J = 1/2 int (A tau:tau + eta^2/H) + int lam psi_over``, integrated exactly
+    (eta is ignored when H = 0; :func:`certify_static` requires it to vanish then)."""
+    t = local_terms(disc, field, psi)
+    return float(t.element_energy.sum() + t.facet_psi_work.sum())
+
+
+@dataclass(frozen=True)
+class StaticCertificate:
+    """Admissibility residuals of a :class:`StaticField`, each relative to a stated scale.
+
+    ``scale`` is the stress scale ``s = max(max_vertices |tau|, max lam, F/|Γ0|)``
+    (|.| the Frobenius norm of the full tensor) and ``t = tau n`` the traction on a
+    facet with unit outward normal n at a facet vertex:
+
+    * ``equilibrium``: ``max_T |div tau_T| h_T / s`` (h_T the smallest height of T);
+    * ``traction_jump``: ``max |t_T + t_T'| / s`` over the vertices of interior facets;
+    * ``free_traction``: ``max |t_j| / s`` over free facets (no group);
+    * ``symmetry_traction``: ``max |t_j| / s``, j not fixed, on facets with fixed components;
+    * ``contact_normal``: ``max |t_d - lam| / s`` and ``contact_tangential``: ``max |t_j| / s``
+      (j != d, not fixed) on Γ0 facets;
+    * ``force_balance``: ``|int_Γ0 lam - F| / F`` with F the problem's load ``disc.force``;
+    * ``contact_sign``: ``max(-lam, 0) / s``;
+    * ``yield_excess``: ``max(sqrt(3/2)|dev tau| - sigma_y - eta, 0) / sigma_y`` at every
+      element vertex;
+    * ``hardening``: ``max |eta| / sigma_y`` when H = 0 (the energy ``eta^2 / H`` forces
+      eta = 0), 0 when H > 0. The sign of eta is free: weak duality needs
+      ``W(eps) >= tau:eps - 1/2 A tau:tau - eta^2/(2H)``, and for eta < 0 with
+      ``sqrt(3/2)|dev tau| <= sigma_y + eta`` the pair ``(tau, 0)`` is in D and gives a
+      larger right-hand side, so ``yield_excess`` is the only condition on eta.
+
+    ``passed`` when every residual is at most ``tol``.
+    """
+
+    equilibrium: float
+    traction_jump: float
+    free_traction: float
+    symmetry_traction: float
+    contact_normal: float
+    contact_tangential: float
+    force_balance: float
+    contact_sign: float
+    yield_excess: float
+    hardening: float
+    scale: float
+    tol: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {k: float(getattr(self, k)) for k in RESIDUALS}
+
+    @property
+    def worst(self) -> float:
+        return max(self.as_dict().values())
+
+    @property
+    def failed(self) -> tuple[str, ...]:
+        """Names of the residuals above the tolerance."""
+        return tuple(k for k, v in self.as_dict().items() if not v <= self.tol)
+
+    @property
+    def passed(self) -> bool:
+        return not self.failed
+
+
+RESIDUALS = ("equilibrium", "traction_jump", "free_traction", "symmetry_traction", "contact_normal",
+             "contact_tangential", "force_balance", "contact_sign", "yield_excess", "hardening")
+
+
+def _vmax(a: np.ndarray) -> float:
+    return float(np.max(a, initial=0.0))
+
+
+def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIFY_TOL) -> StaticCertificate:
+    """Check that ``field`` is statically and plastically admissible (docs/bounds.md).
+
+    Uses only the mesh, the facet groups, the material and the field: facet normals
+    and measures come from edge vectors (:func:`outward_normals`), not from the
+    program's gradient-based rows, and whatever produced the field plays no part.
+
+    Why ``tol = 1e-12`` is safe: an exactly admissible field, stored in double
+    precision, has residuals of a few units of round-off (each residual sums at
+    most 2(d+1)k products of numbers bounded by the scale s: well below 1e-14 s).
+    The repaired fields of :func:`repair_static` measure at 1e-16..1e-14. A field
+    within 1e-12 s of every linear condition is such a stored field up to a
+    perturbation of relative size 1e-12, which changes J by the same relative
+    amount, far below the discretisation gaps that the bounds measure. A solver's
+    raw output (residuals at its tolerance, 1e-10..1e-6) fails.
+    """
+    mesh, m = disc.mesh, disc.material
+    topo = facet_topology(mesh, disc.problem.boundary)
+    tau = np.asarray(field.tau, dtype=float)
+    eta = np.asarray(field.eta, dtype=float)
+    lam = np.asarray(field.lam, dtype=float)
+    F = float(disc.force)  # the problem's load, not the one the field claims
+    if not np.array_equal(np.asarray(field.contact_facets), topo.contact_facets):
+        raise InputError("field.contact_facets", "do not match the contact facets of the problem")
+
+    # equilibrium: div of the linear field from the barycentric gradients
+    _, grads = element_geometry(mesh)
+    div = np.einsum("eadk,eak->ed", traction_operator(grads), tau)
+    h = 1.0 / np.linalg.norm(grads, axis=2).max(axis=1)
+
+    contact_measure = facet_measure(mesh.points[topo.contact_facets])
+    # Mandel vectors are orthonormal coordinates: their norm is the tensor's Frobenius norm
+    s = max(_vmax(np.linalg.norm(tau, axis=-1)), _vmax(lam), F / contact_measure.sum())
+
+    def traction(elements, vertices, nodes):
+        nrm, _ = outward_normals(mesh, elements, nodes)
+        t_vertex = tau[elements[:, None], vertices]  # (m, d, k)
+        return np.einsum("mdk,mak->mad", traction_operator(nrm), t_vertex)
+
+    jump = traction(topo.interior_elements[:, 0], topo.interior_vertices[:, 0], topo.interior_nodes) + traction(
+        topo.interior_elements[:, 1], topo.interior_vertices[:, 1], topo.interior_nodes)
+    tb = np.abs(traction(topo.boundary_elements, topo.boundary_vertices, topo.boundary_nodes))  # (n_bf, d vertices, d)
+    zero = topo.zero_traction[:, None, :]
+    free = ~topo.fixed.any(axis=1) & ~topo.contact
+    sym = topo.fixed.any(axis=1) & ~topo.contact
+    tb_signed = traction(topo.boundary_elements[topo.contact], topo.boundary_vertices[topo.contact],
+                         topo.contact_facets)
+    vm = von_mises(tau.reshape(-1, disc.k)).reshape(eta.shape)
+    return StaticCertificate(
+        equilibrium=_vmax(np.linalg.norm(div, axis=1) * h) / s,
+        traction_jump=_vmax(np.linalg.norm(jump, axis=2)) / s,
+        free_traction=_vmax(np.where(zero, tb, 0.0)[free]) / s,
+        symmetry_traction=_vmax(np.where(zero, tb, 0.0)[sym]) / s,
+        contact_normal=_vmax(np.abs(tb_signed[:, :, -1] - lam)) / s,
+        contact_tangential=_vmax(np.where(zero, tb, 0.0)[topo.contact]) / s,
+        force_balance=abs(float(contact_measure @ lam.mean(axis=1)) - F) / F,
+        contact_sign=_vmax(-lam) / s,
+        yield_excess=_vmax(vm - m.yield_stress - eta) / m.yield_stress,
+        hardening=0.0 if m.hardening > 0 else _vmax(np.abs(eta)) / m.yield_stress,
+        scale=s,
+        tol=tol,
+    )

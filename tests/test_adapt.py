@@ -12,7 +12,11 @@ import pytest
 
 import elastoplast as ep
 import elastoplast.adapt.loop as ad
-from elastoplast.adapt.loop import AdaptOptions, Step, adapt, uniform
+import elastoplast.cli.adapt as adapt_command
+from elastoplast.adapt.budget import FIT_STEPS, affordable_elements, next_mesh, predicted_seconds
+from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate
+from elastoplast.cli.plots import outline_segments, plot_indicator, slice_polygons
+from elastoplast.adapt.loop import adapt, uniform
 from elastoplast.mesh.refinement import dorfler_mark, refine
 
 from conftest import cylinder_dict, sphere_quarter_dict
@@ -43,14 +47,14 @@ def test_element_budget_is_filled_not_overrun(coarse_cylinder, monkeypatch):
     loop stops when even θ = 0.5 asks for more than the budget."""
     budget, theta = 300, 0.5  # measured: θ = 0.5 at 100 and 119 elements, then 0.449 gives 298
     calls = []
-    next_mesh = ad._next_mesh
+    next_mesh = ad.next_mesh
 
     def recorded(mesh, state, eta, asked, allowed, adaptive):
         out = next_mesh(mesh, state, eta, asked, allowed, adaptive)
         calls.append((mesh, state, np.array(eta), asked, allowed, out))
         return out
 
-    monkeypatch.setattr(ad, "_next_mesh", recorded)
+    monkeypatch.setattr(ad, "next_mesh", recorded)
     run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, theta=theta, bracket="never", max_elements=budget))
     assert "max_elements" in run.reason, run.reason
     sizes = [s.n_elements for s in run.steps]
@@ -76,7 +80,7 @@ def test_element_budget_is_filled_not_overrun(coarse_cylinder, monkeypatch):
         lowered += 1
         assert 0.0 < used < theta and wanted > budget
         assert size(mesh, state, dorfler_mark(eta, theta)) == wanted
-        larger = dorfler_mark(eta, used + theta / 2**ad.FIT_STEPS)
+        larger = dorfler_mark(eta, used + theta / 2**FIT_STEPS)
         assert larger.sum() > marked.sum() and size(mesh, state, larger) > budget
     # the last mesh: θ = 0.5 overruns the budget and no smaller θ grows the mesh enough
     mesh, state, eta, _, _, (nxt, wanted) = calls[-1]
@@ -123,13 +127,13 @@ def test_uniform_comparison_is_skipped_when_its_first_mesh_would_overrun(tmp_pat
     from elastoplast.cli.main import main
     from test_cli import write_toml
 
-    run_adapt = ad.adapt
+    run_adapt = adapt_command.adapt
 
     def slow_first_mesh(*args, **kwargs):
         run = run_adapt(*args, **kwargs)
         return replace(run, steps=(replace(run.steps[0], seconds=1e6), *run.steps[1:]))
 
-    monkeypatch.setattr(ad, "adapt", slow_first_mesh)
+    monkeypatch.setattr(adapt_command, "adapt", slow_first_mesh)
     problem = write_toml(tmp_path / "p.toml", cylinder_dict(divisions=(10, 5)))
     code = main(["adapt", str(problem), "--rtol", "0.5", "--time-limit", "3600", "--out", str(tmp_path / "a"),
                  "--quiet"])
@@ -189,38 +193,38 @@ def test_uniform_refines_every_element(coarse_cylinder):
 def test_cost_model_is_exact_on_a_power_law_and_inverts():
     steps = [row(n, seconds=2e-4 * n**1.5, lower=1e-3 * n**1.5) for n in (100, 300, 900)]
     for n in (1000, 5000):
-        assert ad.predicted_seconds(steps, n, bracket=False) == pytest.approx(1.2e-3 * n**1.5, rel=1e-9)
-        assert ad.predicted_seconds(steps, n, bracket=True) == pytest.approx(3.2e-3 * n**1.5, rel=1e-9)
-    n = ad.affordable_elements(steps, 1.2e-3 * 5000**1.5, bracket=False)
+        assert predicted_seconds(steps, n, bracket=False) == pytest.approx(1.2e-3 * n**1.5, rel=1e-9)
+        assert predicted_seconds(steps, n, bracket=True) == pytest.approx(3.2e-3 * n**1.5, rel=1e-9)
+    n = affordable_elements(steps, 1.2e-3 * 5000**1.5, bracket=False)
     assert n in (4999, 5000)
-    assert ad.affordable_elements(steps, 0.0, bracket=False) == 0
+    assert affordable_elements(steps, 0.0, bracket=False) == 0
 
 
 def test_cost_exponent_is_kept_in_range():
     """A cost that falls with the mesh (timing noise) is extrapolated linearly."""
     steps = [row(100, seconds=10.0), row(400, seconds=1.0)]
-    assert ad.predicted_seconds(steps, 800, bracket=False) == pytest.approx(2.0, rel=1e-12)
+    assert predicted_seconds(steps, 800, bracket=False) == pytest.approx(2.0, rel=1e-12)
 
 
 def test_rates_and_elements_at_a_gap_on_a_power_law():
     steps = [row(n, gap=3.0 * n**-0.75) for n in (100, 400, 1600, 6400)]
-    assert ad.fitted_rate(steps) == pytest.approx(0.75, rel=1e-12)
-    assert ad.fitted_rate(steps, last=2) == pytest.approx(0.75, rel=1e-12)
-    assert ad.elements_at_gap(steps, 3.0 * 1000**-0.75) == pytest.approx(1000, rel=1e-9)
-    assert ad.elements_at_gap(steps, 10.0) == 100
-    assert math.isnan(ad.elements_at_gap(steps, 1e-9))
+    assert fitted_rate(steps) == pytest.approx(0.75, rel=1e-12)
+    assert fitted_rate(steps, last=2) == pytest.approx(0.75, rel=1e-12)
+    assert elements_at_gap(steps, 3.0 * 1000**-0.75) == pytest.approx(1000, rel=1e-9)
+    assert elements_at_gap(steps, 10.0) == 100
+    assert math.isnan(elements_at_gap(steps, 1e-9))
 
 
 def test_next_mesh_lowers_theta_to_fit():
     mesh = ep.structured_mesh([8.0, 4.0], [8, 4], 1.0)
     eta = np.linspace(1.0, 2.0, mesh.n_elements)
-    free, wanted = ad._next_mesh(mesh, None, eta, 0.9, 10**9, adaptive=True)
+    free, wanted = next_mesh(mesh, None, eta, 0.9, 10**9, adaptive=True)
     assert free[0].n_elements == wanted and free[3] == 0.9
-    fit, again = ad._next_mesh(mesh, None, eta, 0.9, wanted - 1, adaptive=True)
+    fit, again = next_mesh(mesh, None, eta, 0.9, wanted - 1, adaptive=True)
     assert again == wanted and fit[0].n_elements < wanted and fit[3] < 0.9
     assert fit[2].sum() < free[2].sum() and not np.any(fit[2] & ~free[2])  # a subset is marked
-    assert ad._next_mesh(mesh, None, eta, 0.9, mesh.n_elements, adaptive=True)[0] is None
-    assert ad._next_mesh(mesh, None, eta, 0.9, 4 * mesh.n_elements - 1, adaptive=False) == (None, 4 * mesh.n_elements)
+    assert next_mesh(mesh, None, eta, 0.9, mesh.n_elements, adaptive=True)[0] is None
+    assert next_mesh(mesh, None, eta, 0.9, 4 * mesh.n_elements - 1, adaptive=False) == (None, 4 * mesh.n_elements)
 
 
 # ---------------------------------------------------------------------------
@@ -243,7 +247,7 @@ def test_sections_tile_the_cut_of_the_box(axis, where):
     value = {"low side": layers[0], "grid layer": layers[2], "between layers": 0.5 * (layers[1] + layers[2]),
              "high side": layers[-1]}[where]
     lo, hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
-    polygons, elements, keys = ad.slice_polygons(mesh, axis, value)
+    polygons, elements, keys = slice_polygons(mesh, axis, value)
     other = [i for i in range(3) if i != axis]
     area = polygon_area(polygons)
     assert area.sum() == pytest.approx(np.prod(hi[other] - lo[other]), rel=1e-6)
@@ -255,17 +259,17 @@ def test_outline_of_a_half_is_the_dividing_line():
     segment x = 0 across the height."""
     mesh = ep.structured_mesh([8.0, 4.0], [8, 4], 1.0, grading=1.5)
     inside = mesh.points[mesh.cells].mean(axis=1)[:, 0] < 0
-    seg = ad._outline(mesh.points[mesh.cells], mesh.cells, inside)
+    seg = outline_segments(mesh.points[mesh.cells], mesh.cells, inside)
     np.testing.assert_allclose(seg[:, :, 0], 0.0, atol=1e-12)
     assert np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1).sum() == pytest.approx(4.0, rel=1e-12)
 
 
 def test_indicator_pictures_2d_and_3d(tmp_path, coarse_cylinder):
     run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", max_iter=2))
-    ad.plot_indicator(tmp_path / "a.png", run.disc, run.solution, run.bounds)
+    plot_indicator(tmp_path / "a.png", run.disc, run.solution, run.bounds)
     quarter = ep.problem_from_dict(sphere_quarter_dict(divisions=(3, 3, 3)))
     run3 = adapt(quarter, AdaptOptions(rtol=1e-6, bracket="never", max_iter=1))
-    ad.plot_indicator(tmp_path / "b.png", run3.disc, run3.solution, run3.bounds)
+    plot_indicator(tmp_path / "b.png", run3.disc, run3.solution, run3.bounds)
     assert (tmp_path / "a.png").stat().st_size > 0 and (tmp_path / "b.png").stat().st_size > 0
 
 

@@ -18,7 +18,8 @@ from elastoplast.solvers.registry import Method
 from elastoplast.cli.main import main
 from elastoplast.solvers.loop import within_tolerance
 from elastoplast.problem.options import LOOSEST_TOL, MAX_ITER_CEILING, TIGHTEST_TOL
-from elastoplast.io.output import OUTPUT_MARKER, json_text, write_results
+from elastoplast.io.output import OUTPUT_MARKER, json_text
+from elastoplast.cli.results import write_results
 
 from conftest import PROBLEMS, build
 from test_cli import small_cylinder, write_toml
@@ -261,7 +262,7 @@ def test_failed_write_leaves_the_earlier_output_intact(small_disc, tmp_path, mon
     def broken_vtu(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr("elastoplast.io.output.write_vtu", broken_vtu)
+    monkeypatch.setattr("elastoplast.cli.results.write_vtu", broken_vtu)
     with pytest.raises(OSError):
         write_results(out, small_disc, sol)
     assert (out / "summary.json").read_text() == before
@@ -500,7 +501,7 @@ def test_full_disk_names_out_and_keeps_the_earlier_output(problem_file, tmp_path
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr("elastoplast.io.output.write_vtu", full)
+    monkeypatch.setattr("elastoplast.cli.results.write_vtu", full)
     code, line = run(capsys, "solve", problem_file, "--quiet", "--out", out)
     assert code == 2 and line.startswith("error: --out:") and "No space left" in line, line
     assert sorted(p.name for p in out.iterdir()) == before
@@ -549,7 +550,8 @@ def test_lower_bound_that_cannot_fit_in_memory_is_refused_before_the_solve(probl
     LOWER_BOUND_BYTES_PER_ELEMENT per element (x SEQUENCE_MEMORY_FACTOR with the U
     bracket, two more programs in the same process); 2 MB cannot hold the 400-triangle
     program (18 MB), so `bounds` refuses before the P1 solve and writes nothing."""
-    from elastoplast.adapt.loop import AdaptOptions, lower_bound_limit
+    from elastoplast.adapt.records import AdaptOptions
+    from elastoplast.adapt.budget import lower_bound_limit
     from elastoplast.limits import MEMORY_ENV
     from elastoplast.bounds.lower import (LOWER_BOUND_BYTES_PER_ELEMENT, SEQUENCE_MEMORY_FACTOR, LowerBoundOptions,
                                          solve_lower_bound)
@@ -597,7 +599,9 @@ def test_adapt_plans_under_memory_and_keeps_its_steps_when_refused_mid_run(monke
     mesh instead of losing every step; the U bracket of a refused program is NaN."""
     import warnings
 
-    from elastoplast.adapt.loop import AdaptOptions, adapt, lower_bound_budget
+    from elastoplast.adapt.records import AdaptOptions
+    from elastoplast.adapt.loop import adapt
+    from elastoplast.adapt.budget import lower_bound_budget
     from elastoplast.bounds.bracket import combine, u_bracket_of
     from elastoplast.bounds.upper import upper_bound
     import elastoplast.bounds.lower as eq

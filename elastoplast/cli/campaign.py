@@ -37,13 +37,10 @@ from __future__ import annotations
 
 import copy
 import itertools
-import json
 import logging
-import math
 import os
 import re
 import shutil
-import statistics
 import sys
 import tempfile
 import traceback
@@ -56,12 +53,17 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 
 from elastoplast.errors import InputError
-from elastoplast.io.output import check_output_dir, json_text, staged_output
+from elastoplast.io.store import (
+    ERROR,
+    ResolvedInput,
+    Store,
+    case_record,
+    content_hash,
+    rebuild_problem,
+    resolve,
+)
 from elastoplast.problem.definition import SECTIONS, problem_from_dict, read_toml
 from elastoplast.solvers.registry import check_solvable, method_options, solver_settings
-from elastoplast.io.store import ERROR, ResolvedInput, Store, atomic_write, case_record, content_hash, rebuild_problem, resolve
-
-
 
 # ----------------------------------------------------------------------------
 # the campaign file
@@ -130,7 +132,7 @@ def adapt_settings(section: Mapping[str, Any] | None, method: str) -> dict[str, 
     :class:`~elastoplast.adapt.loop.AdaptOptions`), checked; ``None`` without one. The case
     then runs :func:`~elastoplast.adapt.loop.adapt` with the case's method as the P1
     solver, and stores the final mesh, its solution and its bounds."""
-    from elastoplast.adapt.loop import AdaptOptions
+    from elastoplast.adapt.records import AdaptOptions
 
     if section is None:
         return None
@@ -326,8 +328,8 @@ def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[
     that workers need no shared file system), or ``{"error", "traceback",
     "worker"}`` if anything raised.
     """
+    from elastoplast.cli.results import write_files
     from elastoplast.fem.discretize import discretize
-    from elastoplast.io.output import write_files
     from elastoplast.solvers.registry import solve
 
     worker = _worker_address()
@@ -353,11 +355,13 @@ def adaptive_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
     target was reached with certified bounds, else the budget that stopped it."""
     import dataclasses
 
-    from elastoplast.adapt.loop import AdaptOptions, adapt
+    from elastoplast.adapt.loop import adapt
+    from elastoplast.adapt.records import AdaptOptions
     from elastoplast.bounds.bracket import gap_fields
-    from elastoplast.mesh.base import write_mesh
-    from elastoplast.io.output import json_text, write_files
     from elastoplast.certificate.solution import Status
+    from elastoplast.cli.results import write_files
+    from elastoplast.io.output import json_text
+    from elastoplast.mesh.base import write_mesh
 
     options = AdaptOptions.build({**spec["adapt"], "method": spec["method"]})
     run = adapt(problem, options)
@@ -518,190 +522,3 @@ def _client(client: Any, scheduler: str | None, n_workers: int | None) -> Iterat
 # ----------------------------------------------------------------------------
 
 
-def solution_errors(disc, sol, ref) -> dict[str, float]:
-    """Errors of ``sol`` against the reference ``ref`` (both Solutions of ``disc``):
-
-    * ``U_rel = |U - U_ref| / |U_ref|``;
-    * ``sigma_rel = sqrt([s - s_ref, s - s_ref] / [s_ref, s_ref])`` in the energy
-      inner product of docs/math.md (``s = (sigma, xi)``; the xi part is
-      dropped when H = 0);
-    * ``time_ratio = time / time_ref`` (each solver's own ``timings['total']``).
-    """
-    from elastoplast.certificate.kkt import energy_norm_sq
-
-    ref_norm = energy_norm_sq(disc, ref.sigma, ref.xi)
-    diff = energy_norm_sq(disc, sol.sigma - ref.sigma, sol.xi - ref.xi)
-    tiny = np.finfo(float).tiny
-    return {
-        "U_rel": abs(sol.U - ref.U) / max(abs(ref.U), tiny),
-        "sigma_rel": math.sqrt(diff / max(ref_norm, tiny)),
-        "time_ratio": sol.time_s / max(ref.time_s, tiny),
-    }
-
-
-def compare_problem(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray], refs: Sequence[tuple[str, Any]]) -> dict:
-    """Worker task: solve one stored problem by ``spec['method']`` and measure it
-    against each reference ``(case_id, Solution)`` of that problem."""
-    from elastoplast.fem.discretize import discretize
-    from elastoplast.solvers.registry import solve
-
-    try:
-        disc = discretize(rebuild_problem(spec, arrays))
-        sol = solve(disc, spec["method"], **spec["options"])
-    except Exception as exc:
-        return {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
-    return {
-        "status": sol.status.value, "message": sol.message, "U": sol.U, "kkt_worst": sol.kkt.worst,
-        "iterations": sol.iterations, "time_s": sol.time_s,
-        "errors": {case_id: solution_errors(disc, sol, ref) for case_id, ref in refs},
-    }
-
-
-@dataclass(frozen=True)
-class Comparison:
-    """Per reference case (``rows``) and overall (``summary``) errors of ``method``."""
-
-    method: str
-    rows: tuple[dict[str, Any], ...]
-    summary: Mapping[str, Any]
-
-    def markdown(self) -> str:
-        head = ["case", "parameters", "reference", "status", "U ref", "U", "U rel. err.", "σ energy rel. err.",
-                "KKT worst", "t ref [s]", "t [s]", "time ratio"]
-        lines = [f"# {self.method} against the stored references", "",
-                 "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        for r in self.rows:
-            cells = [r["case"][:12], _params_text(r["params"]), r["reference_method"], r["status"],
-                     _g(r["U_ref"]), _g(r.get("U")), _e(r.get("U_rel")), _e(r.get("sigma_rel")),
-                     _e(r.get("kkt_worst")), _g(r["time_ref"]), _g(r.get("time_s")), _g(r.get("time_ratio"))]
-            lines.append("| " + " | ".join(cells) + " |")
-        s = self.summary
-        lines += ["", f"{s['n_cases']} reference case(s), {s['n_problems']} problem(s); {_method_runs(s)}."]
-        if s["n_compared"]:
-            lines += [f"- U relative error: max {_e(s['U_rel_max'])}, median {_e(s['U_rel_median'])}",
-                      f"- σ energy relative error: max {_e(s['sigma_rel_max'])}, median {_e(s['sigma_rel_median'])}",
-                      f"- time ratio ({self.method} / reference): median {_g(s['time_ratio_median'])}, "
-                      f"geometric mean {_g(s['time_ratio_geomean'])}"]
-        return "\n".join(lines) + "\n"
-
-
-def _method_runs(s: Mapping[str, Any]) -> str:
-    return f"{s['n_converged']} converged, {s['n_not_converged']} not converged, {s['n_errors']} raised"
-
-
-def _g(x: Any) -> str:
-    return "–" if x is None else f"{x:.4g}"
-
-
-def _e(x: Any) -> str:
-    return "–" if x is None else f"{x:.2e}"
-
-
-def _params_text(params: Mapping[str, Any]) -> str:
-    return ", ".join(f"{k}={json.dumps(v)}" for k, v in params.items()) or "–"
-
-
-def _summarise(rows: Sequence[dict[str, Any]], n_problems: int) -> dict[str, Any]:
-    ok = [r for r in rows if r["status"] == "converged"]
-    out: dict[str, Any] = {
-        "n_cases": len(rows), "n_problems": n_problems, "n_compared": len(ok),
-        "n_converged": sum(r["status"] == "converged" for r in rows),
-        "n_not_converged": sum(r["status"] not in ("converged", ERROR) for r in rows),
-        "n_errors": sum(r["status"] == ERROR for r in rows),
-    }
-    if ok:
-        for key in ("U_rel", "sigma_rel"):
-            vals = [r[key] for r in ok]
-            out[f"{key}_max"], out[f"{key}_median"] = max(vals), statistics.median(vals)
-        ratios = [r["time_ratio"] for r in ok]
-        out["time_ratio_median"] = statistics.median(ratios)
-        out["time_ratio_geomean"] = math.exp(statistics.fmean(math.log(max(x, 1e-300)) for x in ratios))
-    return out
-
-
-def plot_comparison(comparison: Comparison, path: str | Path) -> None:
-    """Errors (log scale) and time ratios per reference case, written as PNG."""
-    import io
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = [r for r in comparison.rows if r.get("U_rel") is not None]
-    x = np.arange(len(rows))
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
-    floor = np.finfo(float).eps  # an exact match would vanish from a log axis
-    ax1.semilogy(x, [max(r["U_rel"], floor) for r in rows], "o", label="U relative")
-    ax1.semilogy(x, [max(r["sigma_rel"], floor) for r in rows], "s", label="σ energy relative")
-    ax1.set(xlabel="reference case", ylabel="relative error (drawn at least at machine ε)",
-            title=f"{comparison.method} against the references")
-    ax1.legend()
-    ax2.semilogy(x, [r["time_ratio"] for r in rows], "d")
-    ax2.axhline(1.0, color="grey", lw=0.8)
-    ax2.set(xlabel="reference case", ylabel=f"time {comparison.method} / time reference", title="time ratio")
-    for ax in (ax1, ax2):
-        ax.set_xticks(x, [r["case"][:6] for r in rows], rotation=90, fontsize=7)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120)
-    plt.close(fig)
-    atomic_write(path, buf.getvalue())
-
-
-def compare(store_dir: str | Path, method: str, *, options: Mapping[str, Any] | None = None,
-            reference_method: str | None = None, out: str | Path | None = None, scheduler: str | None = None,
-            client: Any = None, n_workers: int | None = None, progress: bool = True) -> Comparison:
-    """Run ``method`` on every converged stored case (its reference) and report.
-
-    Each distinct problem is solved once and measured against every reference of
-    it. Writes ``report.md``, ``compare.png`` and ``compare.json`` into ``out``
-    (default ``DIR/compare-<method>``) and returns the :class:`Comparison`.
-    """
-    if client is None:
-        check_cluster(scheduler, n_workers)
-    store = Store(store_dir)
-    if not store.exists():
-        raise InputError("store", f"no campaign store at {store.path} (no index.sqlite)")
-    method, options = solver_settings({"method": method, **(options or {})}, prefix="compare")
-    out_dir = Path(out) if out is not None else store.path / f"compare-{method}"
-    check_output_dir(out_dir, "out")  # before any work
-    where, params = "status = 'converged'", ()
-    if reference_method is not None:
-        where, params = where + " AND method = ?", (reference_method,)
-    rows = store.rows(where, params)
-    refs = [r for r in rows if r.get("final_elements") is None]  # adaptive cases: own meshes
-    if not refs:
-        raise InputError("reference_method" if reference_method else "store", f"no converged reference case in {store.path}"
-                         + (f" solved by {reference_method!r}" if reference_method else "")
-                         + (f" ({len(rows)} adaptive case(s), on meshes of their own, are not compared)" if rows else ""))
-    by_problem: dict[str, list[dict]] = {}
-    for row in refs:
-        by_problem.setdefault(row["problem_id"], []).append(row)
-    tasks = {}
-    for problem_id, rows in by_problem.items():
-        inp = store.load_input(rows[0]["id"])
-        spec = {**resolve(rebuild_problem(inp.spec, inp.arrays), method, options).spec}
-        solutions = [(r["id"], store.load_solution(r["id"])) for r in rows]
-        tasks[f"elastoplast-compare-{method}-{problem_id}"] = (compare_problem, spec, inp.arrays, solutions)
-    results: dict[str, dict] = {}
-    with _client(client, scheduler, n_workers) as cl:
-        for key, result in _gather(cl, tasks, f"compare {method}", progress):
-            results[key.rsplit("-", 1)[1]] = result
-    rows_out = []
-    for row in refs:
-        res = results[row["problem_id"]]
-        entry = {"case": row["id"], "params": json.loads(row["params"]), "reference_method": row["method"],
-                 "U_ref": row["U"], "time_ref": row["time_total"]}
-        if "error" in res:
-            entry.update(status=ERROR, error=res["error"])
-        else:
-            entry.update(status=res["status"], U=res["U"], kkt_worst=res["kkt_worst"], time_s=res["time_s"],
-                         iterations=res["iterations"], message=res["message"], **res["errors"][row["id"]])
-        rows_out.append(entry)
-    comparison = Comparison(method=method, rows=tuple(rows_out), summary=_summarise(rows_out, len(by_problem)))
-    with staged_output(out_dir, "out") as tmp:
-        atomic_write(tmp / "report.md", comparison.markdown().encode())
-        atomic_write(tmp / "compare.json", json_text({"method": method, "options": options, "rows": rows_out,
-                                                      "summary": comparison.summary}).encode())
-        plot_comparison(comparison, tmp / "compare.png")
-    return comparison

@@ -192,7 +192,7 @@ def _discretize(path: Path, data: dict, quiet: bool, what: str):
 
 
 def _solve(args: argparse.Namespace) -> int:
-    from elastoplast.io.output import write_results
+    from elastoplast.cli.results import write_results
     from elastoplast.solvers.registry import solve
 
     path, data, method, opts = _setup(args)
@@ -211,9 +211,13 @@ def _solve(args: argparse.Namespace) -> int:
 
 def _bounds(args: argparse.Namespace) -> int:
     from elastoplast.bounds.bracket import certified_bounds, gap_fields
-    from elastoplast.bounds.lower import SEQUENCE_MEMORY_FACTOR, LowerBoundOptions, check_lower_bound_size
-    from elastoplast.io.output import write_results
+    from elastoplast.bounds.lower import (
+        SEQUENCE_MEMORY_FACTOR,
+        LowerBoundOptions,
+        check_lower_bound_size,
+    )
     from elastoplast.certificate.solution import Status
+    from elastoplast.cli.results import write_results
     from elastoplast.solvers.registry import check_solvable, solve
 
     path, data, method, opts = _setup(args)
@@ -243,8 +247,8 @@ def _bounds(args: argparse.Namespace) -> int:
 
 
 def _limit(args: argparse.Namespace) -> int:
-    from elastoplast.bounds.lower import LowerBoundOptions
     from elastoplast.bounds.limit import LimitOptions, limit_load
+    from elastoplast.bounds.lower import LowerBoundOptions
     from elastoplast.io.output import json_text, staged_output
 
     path, data, _, _ = _setup(args, method_flag=False)
@@ -268,8 +272,9 @@ def _limit(args: argparse.Namespace) -> int:
 
 
 def _adapt(args: argparse.Namespace) -> int:
-    from elastoplast.adapt.loop import AdaptOptions, check_adaptable, run_adapt_command
-
+    from elastoplast.adapt.loop import check_adaptable
+    from elastoplast.adapt.records import AdaptOptions
+    from elastoplast.cli.adapt import run_adapt_command
     from elastoplast.solvers.registry import get_method
 
     path, data, method, _ = _setup(args, method_flag=False)
@@ -319,7 +324,7 @@ def _campaign(args: argparse.Namespace) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from elastoplast.cli.campaign import compare
+    from elastoplast.cli.compare import compare
     from elastoplast.solvers.registry import method_options
 
     options = command_line_options(args)

@@ -15,10 +15,10 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from elastoplast.fem.discretize import Discretization
+from elastoplast.certificate.solution import Solution
 from elastoplast.errors import InputError
+from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import von_mises
-from elastoplast.certificate.solution import Solution, summary
 
 _VTK_CELL = {2: "triangle", 3: "tetra"}
 
@@ -189,73 +189,6 @@ def staged_output(out_dir: str | Path, field: str = "out") -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-
-
-def write_results(out_dir: str | Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None,
-                  *, field: str = "out", **vtu: Any) -> dict:
-    """Write ``solution.vtu``, ``summary.json`` and (for iterative methods)
-    ``convergence.png`` into ``out_dir``, which then holds nothing else but the
-    marker (:func:`staged_output`; errors name ``field``); returns the summary.
-    ``vtu``: more data for :func:`write_vtu` (``cell_data``, ``facets``)."""
-    with staged_output(out_dir, field) as tmp:
-        return write_files(tmp, disc, sol, extra, **vtu)
-
-
-def write_files(folder: Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None,
-                **vtu: Any) -> dict:
-    """The files of :func:`write_results`, written into an existing folder."""
-    from elastoplast.io.provenance import stamp
-
-    write_vtu(folder / "solution.vtu", disc, sol, **vtu)
-    data = summary(disc, sol)
-    if sol.history:
-        data["history"] = sol.history
-    if extra:
-        data.update(extra)
-    data["provenance"] = stamp()
-    (folder / "summary.json").write_text(json_text(data))
-    if sol.history:
-        plot_convergence(folder / "convergence.png", sol.history, f"{sol.method}: {sol.status.value}")
-    return data
-
-
-def plot_convergence(path: str | Path, history: list[dict[str, Any]], title: str = "") -> bool:
-    """Plot the KKT residuals of an iteration history against the iteration.
-
-    Each history row may hold ``residuals`` (a dict name -> value, one curve
-    each) and ``kkt_worst``; rows are placed at their ``iteration`` (else their
-    index). Returns False, writing nothing, when no row has residuals.
-    """
-    from matplotlib.figure import Figure
-
-    rows = [h for h in history if isinstance(h.get("residuals"), dict) or "kkt_worst" in h]
-    if not rows:
-        return False
-    its = [h.get("iteration", i) for i, h in enumerate(rows)]
-    fig = Figure(figsize=(6.4, 4.2), layout="constrained")
-    ax = fig.add_subplot()
-    curves = {name: [h.get("residuals", {}).get(name, np.nan) for h in rows]
-              for name in sorted({k for h in rows for k in h.get("residuals", {})})}
-    for name, vals in curves.items():
-        ax.semilogy(its, _positive(vals), lw=1.0, label=name)
-    if any("kkt_worst" in h for h in rows):
-        worst = _positive([h.get("kkt_worst", np.nan) for h in rows])
-        ax.semilogy(its, worst, "k--", lw=1.5, label="worst")
-        if np.any(np.isfinite(worst)):  # show the worst residual's range, down to 1e-4 below its end
-            ax.set_ylim(np.nanmin(worst) * 1e-4, np.nanmax(worst) * 10)
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("relative KKT residual")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
-    fig.savefig(Path(path), dpi=110)
-    return True
-
-
-def _positive(values: list[Any]) -> np.ndarray:
-    """Values as floats with zeros and negatives as NaN (not drawn on a log axis)."""
-    v = np.asarray(values, dtype=float)
-    return np.where(v > 0, v, np.nan)
 
 
 def json_default(obj: Any) -> Any:

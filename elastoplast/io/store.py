@@ -41,11 +41,11 @@ import numpy as np
 
 from elastoplast import __version__
 from elastoplast.certificate.kkt import KKTResiduals
+from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.errors import InputError
 from elastoplast.fem.material import Material
 from elastoplast.mesh.base import Mesh
 from elastoplast.problem.definition import Boundary, Obstacle, Problem
-from elastoplast.certificate.solution import Solution, Status, make_solution
 
 #: the index row of a case whose run raised (a crash, a lost worker): retried on resume
 ERROR = "error"

@@ -19,7 +19,7 @@ import scipy.sparse.linalg as spla
 import elastoplast as ep
 from conftest import build, cylinder_dict, energy_error, sphere_quarter_dict
 from elastoplast.linalg.amg import FaceSystems, assemble, block_layout, bsr, contact_dofs
-from elastoplast.solvers.newton import AMG_FROM_ELEMENTS, choose_backend, energy, forcing_term
+from elastoplast.solvers.newton import NEWTON_AMG_FROM_ELEMENTS, choose_backend, energy, forcing_term
 from elastoplast.solvers.registry import CONIC_MAX_ELEMENTS
 from elastoplast.certificate.kkt import abs_transpose_product, gaps
 from elastoplast.fem.discretize import element_geometry, free_strain_operator, nondimensionalize
@@ -27,7 +27,7 @@ from elastoplast.errors import InputError
 from elastoplast.fem.material import consistent_tangent
 from elastoplast.mesh.topology import boundary_facets
 from elastoplast.mesh.base import structured_mesh
-from elastoplast.solvers.uzawa import IterativeProjection
+from elastoplast.solvers.contact import IterativeProjection
 
 TOL = 1e-9
 
@@ -223,12 +223,12 @@ def test_iterative_projection_meets_its_optimality_conditions(name, request):
 
 
 def test_auto_takes_amg_from_the_crossover(quarter, monkeypatch):
-    monkeypatch.setitem(AMG_FROM_ELEMENTS["pardiso"], 3, quarter.n_elements)
-    monkeypatch.setitem(AMG_FROM_ELEMENTS["splu"], 3, quarter.n_elements)
+    monkeypatch.setitem(NEWTON_AMG_FROM_ELEMENTS["pardiso"], 3, quarter.n_elements)
+    monkeypatch.setitem(NEWTON_AMG_FROM_ELEMENTS["splu"], 3, quarter.n_elements)
     assert choose_backend(quarter, "auto") == "amg"
     assert choose_backend(quarter, "splu") == "splu"
-    monkeypatch.setitem(AMG_FROM_ELEMENTS["pardiso"], 3, quarter.n_elements + 1)
-    monkeypatch.setitem(AMG_FROM_ELEMENTS["splu"], 3, quarter.n_elements + 1)
+    monkeypatch.setitem(NEWTON_AMG_FROM_ELEMENTS["pardiso"], 3, quarter.n_elements + 1)
+    monkeypatch.setitem(NEWTON_AMG_FROM_ELEMENTS["splu"], 3, quarter.n_elements + 1)
     assert choose_backend(quarter, "auto") in ("pardiso", "splu")
 
 

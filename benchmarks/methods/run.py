@@ -25,6 +25,7 @@ degrades (issue 4's premise).
 from __future__ import annotations
 
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -35,7 +36,9 @@ import elastoplast as ep
 from elastoplast.certificate.kkt import energy_norm_sq
 from elastoplast.fem.discretize import nondimensionalize
 from elastoplast.problem.definition import problem_from_dict, read_toml
-from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 PROBLEMS = HERE.parents[1] / "problems"
@@ -86,7 +89,7 @@ def run_method(disc, method: str, **opts) -> tuple[dict, ep.Solution]:
     if method == "newton":
         row["history_kkt"] = [h["kkt_worst"] for h in sol.history if "kkt_worst" in h]
         row["factorizations"] = int(sum(bool(h.get("factorized")) for h in sol.history))
-        # the AMG-CG path (3D from newton.AMG_FROM_ELEMENTS) builds hierarchies instead
+        # the AMG-CG path (3D from NEWTON_AMG_FROM_ELEMENTS) builds hierarchies instead
         row["amg_setups"] = int(sum(bool(h.get("amg_setup")) for h in sol.history))
         row["cg_iterations"] = int(sum(h.get("cg_iterations", 0) for h in sol.history))
     return row, sol
@@ -99,15 +102,11 @@ def compare(disc, sol: ep.Solution, ref: ep.Solution) -> dict:
             "same_plastic": bool(np.array_equal(sol.plastic, ref.plastic))}
 
 
-def main(argv=None) -> int:
-    args = record_parser(__doc__, "small meshes only").parse_args(argv)
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, markdown)
-        return 0
+def measure(mode: str, out: Path) -> dict:
+    quick = mode == "quick"
     methods = [m for m in ("conic", "uzawa", "uzawa-fast", "newton") if m in ep.METHODS]
     elastic_solve_time(case("cylinder_2d", [8, 4])[1])  # load MKL and start its threads before timing
-    if args.quick:
+    if quick:
         cases = [case("cylinder_2d", [40, 20]), case("cylinder_2d", [40, 20], 1e-3),
                  case("cylinder_2d", [40, 20], 1e-3, 6.0), case("sphere_block_3d", [10, 10, 6], 1e-3)]
         big = case("sphere_block_3d", [16, 16, 8])
@@ -117,7 +116,7 @@ def main(argv=None) -> int:
                  case("sphere_quarter_3d", [8, 8, 8], 1e-3, 3.0),
                  case("sphere_block_3d", [16, 16, 8], 1e-3), case("sphere_block_3d", [16, 16, 8], 1e-3, 3.0)]
         big = case("sphere_block_3d", [34, 34, 16])
-    results = {"quick": args.quick, "machine": {"cpus": os.cpu_count(), "loadavg_start": os.getloadavg()},
+    results = {"quick": quick, "machine": {"cpus": os.cpu_count(), "loadavg_start": os.getloadavg()},
                "tol": TOL, "cases": []}
     for label, disc in cases + [big]:
         is_big = label == big[0]
@@ -156,8 +155,7 @@ def main(argv=None) -> int:
         print(f"  elastic solve {entry['elastic_solve']['total_s']:.2f} s; fastest {entry['fastest']} = "
               f"{entry['fastest_over_elastic']:.1f}x elastic" if fastest else "  none converged", flush=True)
     results["machine"]["loadavg_end"] = os.getloadavg()
-    write_record(out, results, TITLE, markdown)
-    return 0
+    return results
 
 
 TITLE = "Every method on the same problems (issue 4)"
@@ -195,5 +193,9 @@ def markdown(results: dict) -> str:
     return "\n".join(lines)
 
 
+def main(argv=None) -> int:
+    return run_record(__doc__, "small meshes only", HERE, TITLE, "methods benchmark", measure, markdown, argv=argv)
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

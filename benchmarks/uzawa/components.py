@@ -18,15 +18,21 @@ Usage::
 from __future__ import annotations
 
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+import elastoplast.solvers.uzawa as uz
 from common import family
-from elastoplast.solvers.uzawa import UzawaOptions, _nnls_fallback, solve_contact_qp, solve_uzawa
-from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
-from elastoplast.solvers.uzawa import FACTORIZATIONS, metric_matrix
+from elastoplast.solvers.uzawa import UzawaOptions, solve_uzawa
+from elastoplast.solvers.contact import _nnls_fallback, solve_contact_qp
+from elastoplast.linalg.direct import FACTORIZATIONS
+from elastoplast.solvers.uzawa import metric_matrix
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 TITLE = "Uzawa's step (ii): factorisation of G and the contact QP"
@@ -57,22 +63,22 @@ def measure(disc, name: str, repeats: int = 20) -> dict:
 def record_qps(disc) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
     """The (S, g, warm start) of every contact QP of one Uzawa run.
 
-    The QP in S exists on the direct path only: from ``uzawa.AMG_FROM_ELEMENTS``
+    The QP in S exists on the direct path only: from ``UZAWA_AMG_FROM_ELEMENTS``
     elements on, "auto" projects by a primal-dual active set on AMG-CG face solves
     and forms no S. The run therefore factors G with SuperLU (always installed; the
     QPs do not depend on the factorisation beyond round-off)."""
     seen = []
-    exact = solve_contact_qp
+    exact = uz.solve_contact_qp
 
     def spy(S, g, lam0=None, max_iter=None):
         seen.append((S, g.copy(), None if lam0 is None else lam0.copy()))
         return exact(S, g, lam0, max_iter)
 
-    solve_contact_qp = spy
+    uz.solve_contact_qp = spy
     try:
         solve_uzawa(disc, UzawaOptions(tol=1e-6, factorization="splu"))
     finally:
-        solve_contact_qp = exact
+        uz.solve_contact_qp = exact
     return seen
 
 
@@ -130,24 +136,24 @@ def markdown(data: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def main() -> None:
-    args = record_parser(__doc__).parse_args()
-    out_dir = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out_dir, TITLE, markdown, study="components")
-        return
+def measure_all(mode: str, out: Path) -> dict:
+    cases = QUICK if mode == "quick" else CASES
     rows = []
-    for name, div in QUICK if args.quick else CASES:
+    for name, div in cases:
         disc = family(name, div)
         for backend in FACTORIZATIONS:
             row = {"problem": name, "divisions": div, "n_elements": disc.n_elements, "n_free": disc.n_free,
                    "n_contact": disc.n_contact, **measure(disc, backend)}
             rows.append(row)
             print(json.dumps(row))
-    qps = measure_qps(family(*(QUICK if args.quick else CASES)[-1]))
-    write_record(out_dir, {"quick": args.quick, "factorizations": rows, "contact_qp": qps}, TITLE, markdown,
-                 study="components")
+    qps = measure_qps(family(*cases[-1]))
+    return {"quick": mode == "quick", "factorizations": rows, "contact_qp": qps}
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "small cases", HERE, TITLE, "Uzawa components study", measure_all, markdown, argv=argv,
+                      study="components")
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -27,14 +27,14 @@ def project_affine(A: sp.csc_matrix, b: np.ndarray, x: np.ndarray, max_refine: i
     ``eps / (sigma^2 + eps)`` for every nonzero singular value sigma of A.
     Returns ``(x, max |b - A x| / max_i sum_j |A_ij x_j|)`` after the last sweep.
     """
-    from elastoplast.solvers.uzawa import factorize_metric
+    from elastoplast.linalg.direct import factorize_spd
 
     A = sp.csr_matrix(A)
     norms = np.sqrt(np.asarray(A.multiply(A).sum(axis=1)).ravel())
     norms[norms == 0] = 1.0
     As = sp.diags(1.0 / norms) @ A
     bs = b / norms
-    solve = factorize_metric((As @ As.T + GRAM_REGULARISATION * sp.eye(A.shape[0])).tocsc())
+    solve = factorize_spd((As @ As.T + GRAM_REGULARISATION * sp.eye(A.shape[0])).tocsc())
     x = x.copy()
     last = np.inf
     for _ in range(max_refine):

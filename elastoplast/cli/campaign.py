@@ -431,7 +431,7 @@ def _failed(out: Mapping[str, Any]) -> bool:
     return out["status"] != "converged" if "status" in out else not out["solution"].converged
 
 
-def _gather(client: Any, tasks: Mapping[str, tuple], desc: str, progress: bool) -> Iterator[tuple[str, dict]]:
+def gather_results(client: Any, tasks: Mapping[str, tuple], desc: str, progress: bool) -> Iterator[tuple[str, dict]]:
     """Warm the workers up, submit ``{key: (fn, spec, *args)}`` and yield
     ``(key, result)`` as tasks finish; a task whose worker died yields an error
     result instead."""
@@ -499,8 +499,8 @@ def _run(campaign: Campaign, store: Store, scheduler: str | None, client: Any, n
         if not todo:
             return CampaignRun(store=store.path, skipped=skipped)
         tasks = {f"elastoplast-case-{cid}": (run_case, dict(c.input.spec), dict(c.input.arrays)) for cid, c in todo.items()}
-        with _client(client, scheduler, n_workers) as cl:
-            for key, result in _gather(cl, tasks, campaign.name, progress):
+        with cluster_client(client, scheduler, n_workers) as cl:
+            for key, result in gather_results(cl, tasks, campaign.name, progress):
                 case = todo[key.removeprefix("elastoplast-case-")]
                 record = case_record(case.input, case.params, campaign.name, **result)
                 store.add(record)
@@ -509,7 +509,7 @@ def _run(campaign: Campaign, store: Store, scheduler: str | None, client: Any, n
 
 
 @contextmanager
-def _client(client: Any, scheduler: str | None, n_workers: int | None) -> Iterator[Any]:
+def cluster_client(client: Any, scheduler: str | None, n_workers: int | None) -> Iterator[Any]:
     if client is not None:
         yield client
         return

@@ -12,7 +12,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from elastoplast.cli.campaign import _client, _gather, check_cluster
+from elastoplast.cli.campaign import cluster_client, gather_results, check_cluster
 from elastoplast.cli.plots import plot_comparison
 from elastoplast.errors import InputError
 from elastoplast.io.output import check_output_dir, json_text, staged_output
@@ -157,8 +157,8 @@ def compare(store_dir: str | Path, method: str, *, options: Mapping[str, Any] | 
         solutions = [(r["id"], store.load_solution(r["id"])) for r in rows]
         tasks[f"elastoplast-compare-{method}-{problem_id}"] = (compare_problem, spec, inp.arrays, solutions)
     results: dict[str, dict] = {}
-    with _client(client, scheduler, n_workers) as cl:
-        for key, result in _gather(cl, tasks, f"compare {method}", progress):
+    with cluster_client(client, scheduler, n_workers) as cl:
+        for key, result in gather_results(cl, tasks, f"compare {method}", progress):
             results[key.rsplit("-", 1)[1]] = result
     rows_out = []
     for row in refs:

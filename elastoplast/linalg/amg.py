@@ -32,7 +32,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from elastoplast.fem.discretize import STRAIN_ROWS, Discretization, rigid_motions, element_jacobians, shape_gradients
+from elastoplast.fem.discretize import (
+    STRAIN_ROWS,
+    Discretization,
+    element_jacobians,
+    rigid_motions,
+    shape_gradients,
+)
 
 #: elements per chunk of the assembly: bounds its temporaries (a chunk of 3D
 #: element matrices is 2^16 * 144 doubles = 75 MB)

@@ -53,13 +53,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from elastoplast.fem.discretize import nondimensionalize
-from elastoplast.errors import InputError
-from elastoplast.solvers.loop import Monitor
-from elastoplast.fem.material import Material, n_components, return_mapping
-from elastoplast.problem.options import MAX_ITER_CEILING, SolverOptions, option
 from elastoplast.certificate.solution import Solution
-from elastoplast.solvers.uzawa import FACTORIZATIONS, iterative_context, metric_projection, project_stresses, projection_note
+from elastoplast.errors import InputError
+from elastoplast.fem.discretize import nondimensionalize
+from elastoplast.fem.material import Material, n_components, return_mapping
+from elastoplast.linalg.direct import FACTORIZATIONS
+from elastoplast.problem.options import MAX_ITER_CEILING, SolverOptions, option
+from elastoplast.solvers.contact import (
+    iterative_context,
+    metric_projection,
+    projection_note,
+)
+from elastoplast.solvers.loop import Monitor
+from elastoplast.solvers.uzawa import project_stresses
 
 #: step as a share of FISTA's bound 1 / lambda_max(C)
 RHO_SHARE = 0.99

@@ -22,13 +22,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
+from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.fem.discretize import Discretization, Units, nondimensionalize
-from elastoplast.solvers.loop import within_tolerance
 from elastoplast.fem.material import SQRT_3_2, return_mapping, von_mises
 from elastoplast.problem.options import SolverOptions, option
-from elastoplast.solvers.polish import newton_polish
-from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.solvers.backends import ConicAnswer, clarabel_settings, solve_clarabel
+from elastoplast.solvers.loop import within_tolerance
+from elastoplast.solvers.polish import newton_polish
 
 
 @dataclass(frozen=True)

@@ -28,10 +28,16 @@ from typing import Any
 import numpy as np
 
 from elastoplast.certificate.kkt import KKTResiduals, certify
+from elastoplast.certificate.solution import (
+    ACTIVE_FORCE_SHARE,
+    PLASTIC_SHARE,
+    Solution,
+    Status,
+    make_solution,
+)
 from elastoplast.fem.discretize import Discretization, Units
 from elastoplast.fem.material import von_mises
 from elastoplast.problem.options import SolverOptions
-from elastoplast.certificate.solution import ACTIVE_FORCE_SHARE, PLASTIC_SHARE, Solution, Status, make_solution
 
 #: the keys of every history row (methods may add their own after these)
 HISTORY_KEYS = ("iteration", "residuals", "kkt_worst", "U", "n_active", "n_plastic", "time_s")

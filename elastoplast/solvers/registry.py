@@ -14,14 +14,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
-from elastoplast.solvers.accelerated import FastOptions, solve_accelerated
-from elastoplast.fem.locking import check_perfect_plasticity
-from elastoplast.solvers.conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
-from elastoplast.fem.discretize import Discretization
-from elastoplast.errors import InputError, expect
-from elastoplast.solvers.newton import NewtonOptions, solve_newton
-from elastoplast.problem.options import SolverOptions
 from elastoplast.certificate.solution import Solution
+from elastoplast.errors import InputError, expect
+from elastoplast.fem.discretize import Discretization
+from elastoplast.fem.locking import check_perfect_plasticity
+from elastoplast.problem.options import SolverOptions
+from elastoplast.solvers.accelerated import FastOptions, solve_accelerated
+from elastoplast.solvers.conic import (
+    ConicOptions,
+    solve_conic,
+    solve_conic_cvxpy,
+    solve_conic_displacement,
+)
+from elastoplast.solvers.newton import NewtonOptions, solve_newton
 from elastoplast.solvers.uzawa import UzawaOptions, check_rho, solve_uzawa
 
 

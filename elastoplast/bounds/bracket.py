@@ -130,9 +130,16 @@ def u_bracket(disc: Discretization, delta: float, solve_bounds_at: Callable[[flo
 
         raise InputError("delta", f"must lie in (0, F) = (0, {F:g}), got {delta!r}")
     lo_m, _ = solve_bounds_at(F - delta)
-    lo_0, hi_0 = solve_bounds_at(F)
+    _, hi_0 = solve_bounds_at(F)
     lo_p, _ = solve_bounds_at(F + delta)
-    return (lo_m - hi_0) / delta, (hi_0 - lo_p) / delta
+    return u_secants(lo_m, hi_0, lo_p, delta, delta)
+
+
+def u_secants(lower_minus: float, upper: float, lower_plus: float, delta_minus: float,
+              delta_plus: float) -> tuple[float, float]:
+    """The secant bounds of :func:`u_bracket`: ``U(F) >= (lo(F - delta_minus) - hi(F)) / delta_minus``
+    and ``U(F) <= (hi(F) - lo(F + delta_plus)) / delta_plus`` (each side holds for its own delta)."""
+    return (lower_minus - upper) / delta_minus, (upper - lower_plus) / delta_plus
 
 
 def choose_delta(force: float, gap: float, dU_dF: float) -> float:
@@ -278,8 +285,8 @@ def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
             if exc.field != "load.force":
                 raise
             delta_plus /= 4.0
-    U_lo = (minus.lower - b.energy_upper) / delta
-    U_hi = (b.energy_upper - plus.lower) / delta_plus if plus is not None else float("inf")
+    plus_lower = plus.lower if plus is not None else -math.inf
+    U_lo, U_hi = u_secants(minus.lower, b.energy_upper, plus_lower, delta, delta_plus)
     certified = minus.certified and plus is not None and plus.certified
     return U_lo, U_hi, (delta, delta_plus), certified
 

@@ -126,7 +126,7 @@ class LowerBoundOptions(SolverOptions):
     ``tol``: the admissibility certificate's tolerance (:func:`certify_static`);
     ``ip_tol``, ``max_iter``, ``verbose``, ``time_limit``, ``linear_solver``:
     Clarabel's, as in :class:`~elastoplast.solvers.conic.ConicOptions` (``"auto"``: see
-    :data:`FAER_FROM_ELEMENTS_3D`). ``yield_margin``: with H = 0 the energy
+    :data:`LOWER_BOUND_FAER_FROM_ELEMENTS_3D`). ``yield_margin``: with H = 0 the energy
     program is solved with the yield stress ``(1 - yield_margin) sigma_y``, so
     that the repair's correction (of the size of the solver's residuals) cannot
     push a vertex outside the true yield surface; the bound is still valid for
@@ -163,13 +163,13 @@ class LowerBoundOptions(SolverOptions):
 #: 2D QDLDL. Measured (benchmarks/bounds/lower.md, quarter sphere, whole lower bound, 2
 #: cores, one run): 162 tetrahedra QDLDL 0.8 s / faer 3.1 s; 288: 3.5 / 6.7; 600: 22.0 / 19.4;
 #: 1080: 137.2 / 44.7.
-FAER_FROM_ELEMENTS_3D = 600
+LOWER_BOUND_FAER_FROM_ELEMENTS_3D = 600
 
 
 def lower_bound_kkt_solver(disc: Discretization, options: "LowerBoundOptions") -> str:
     if options.linear_solver != "auto":
         return options.linear_solver
-    return "faer" if disc.dim == 3 and disc.n_elements >= FAER_FROM_ELEMENTS_3D else "qdldl"
+    return "faer" if disc.dim == 3 and disc.n_elements >= LOWER_BOUND_FAER_FROM_ELEMENTS_3D else "qdldl"
 
 
 #: "auto" solves 3D programs from this many elements with SCS, smaller ones and 2D ones

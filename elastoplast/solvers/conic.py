@@ -165,14 +165,14 @@ def stress_form_data(disc: Discretization, with_yield: bool = True):
 #: Measured on the 3D sphere, whole conic solve, 2 cores: 12,288 tetrahedra QDLDL 6.0 s /
 #: faer 10.2 s; 24,000: 31.8 s / 21.7 s; 41,472: 123.5 s / 45.6 s. In 2D QDLDL was as
 #: fast or faster up to 25,600 triangles (4.6 s / 8.4 s).
-FAER_FROM_ELEMENTS_3D = 16_000
+CONIC_FAER_FROM_ELEMENTS_3D = 16_000
 
 
 def kkt_solver(disc: Discretization, options: ConicOptions) -> str:
     """The Clarabel ``direct_solve_method`` for this problem."""
     if options.linear_solver != "auto":
         return options.linear_solver
-    return "faer" if disc.dim == 3 and disc.n_elements >= FAER_FROM_ELEMENTS_3D else "qdldl"
+    return "faer" if disc.dim == 3 and disc.n_elements >= CONIC_FAER_FROM_ELEMENTS_3D else "qdldl"
 
 
 def _status(answer: ConicAnswer) -> tuple[Status, str]:

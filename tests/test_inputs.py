@@ -830,14 +830,14 @@ def test_expression_that_leaves_a_gap_warns(tmp_path, capsys):
 def test_expressions_evaluate_in_floats():
     """Integer constants become float64: 2**-1 is 0.5 (not an int power error) and
     huge powers are inf at once."""
-    from elastoplast.problem.definition import _compile_expression
+    from elastoplast.problem.expressions import compile_expression
 
-    code, consts = _compile_expression("2**-1 + x*0 + 7//2", 2, "obstacle.expression")
+    code, consts = compile_expression("2**-1 + x*0 + 7//2", 2, "obstacle.expression")
     x = np.array([0.0, 1.0])
     assert np.array_equal(eval(code, {"__builtins__": {}}, {**consts, "x": x}), [3.5, 3.5])
     assert all(type(v) is np.float64 for v in consts.values())
     start = time.perf_counter()
-    code, consts = _compile_expression("9**9**9**9", 2, "obstacle.expression")
+    code, consts = compile_expression("9**9**9**9", 2, "obstacle.expression")
     with np.errstate(all="ignore"):
         assert eval(code, {"__builtins__": {}}, consts) == np.inf
     assert time.perf_counter() - start < 1.0

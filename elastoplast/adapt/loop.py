@@ -1,4 +1,4 @@
-"""Adaptive refinement driven by the certified gap (issue 11).
+"""Adaptive refinement driven by the certified gap.
 
 The gap between the upper bound Π(v, V) of the P1 solution and the lower bound
 −J of the equilibrium element (docs/bounds.md) is a sum of element and
@@ -42,8 +42,9 @@ comparison, :func:`uniform` runs the same pipeline refining every element.
 Measured (benchmarks/adapt/REPORT.md): the lower-bound program is most of the
 cost of a step (the P1 solves about 5 % in 2D, 1 % in 3D), so a U bracket at
 every step nearly triples the loop's time (its two programs took 1.97 times the
-one at F in 2D), and warm starts save Newton iterations (25 instead of 45 over
-six meshes in 2D) but little of the total (benchmarks/adapt/warm.md).
+one at F in 2D), and warm starts save Newton iterations (65 instead of 110 over
+seven meshes of the 2D cylinder, the problem and its conservative variant) but
+little of the total: 1.2 s of 37.6 s of lower bounds (benchmarks/adapt/warm.md).
 """
 
 from __future__ import annotations
@@ -287,15 +288,3 @@ def _prolonged(sol: Solution, state: BisectionState) -> Solution:
     """A start for the refined mesh: the solution's displacements interpolated onto its
     nodes (only ``u`` and ``U`` are read by Newton's warm start)."""
     return replace(sol, u=prolong_p1(state, sol.u))
-
-
-# ----------------------------------------------------------------------------
-# pictures: the gap against the elements; the adapted mesh coloured by the indicator
-# ----------------------------------------------------------------------------
-
-
-# ----------------------------------------------------------------------------
-# the command: run, compare with uniform refinement, write everything
-# ----------------------------------------------------------------------------
-
-

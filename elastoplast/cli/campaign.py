@@ -515,10 +515,3 @@ def cluster_client(client: Any, scheduler: str | None, n_workers: int | None) ->
         return
     with dask_client(scheduler, n_workers) as cl:
         yield cl
-
-
-# ----------------------------------------------------------------------------
-# comparing a method against the stored references
-# ----------------------------------------------------------------------------
-
-

@@ -3,7 +3,7 @@
 The lower bound needs ``int_f lam psi`` over-estimated on every contact facet. For
 ``shape = "expression"`` nothing is known about convexity, so psi is enclosed by
 interval arithmetic on the expression's syntax tree (the same restricted grammar
-as :func:`elastoplast.problem.definition.compile_expression`), over boxes covering pieces of
+as :func:`elastoplast.problem.expressions.compile_expression`), over boxes covering pieces of
 each facet. Every operation rounds outward: ``+ - * /`` and ``sqrt`` (correctly
 rounded in IEEE arithmetic) by one ulp, library functions (exp, log, sin, ...,
 within a few ulps of the exact value in glibc) by ``LIBM_ULPS`` relative units of
@@ -21,7 +21,7 @@ import ast
 
 import numpy as np
 
-from elastoplast.problem.definition import compile_expression
+from elastoplast.problem.expressions import compile_expression
 
 #: relative widening of library-function results, in units of machine epsilon
 LIBM_ULPS = 4.0

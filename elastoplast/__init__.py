@@ -26,16 +26,11 @@ from elastoplast.mesh.refinement import BisectionState, dorfler_mark, prolong_p1
 from elastoplast.certificate.solution import Solution, Status, make_solution, summary
 from elastoplast.solvers.newton import NewtonOptions, solve_newton
 from elastoplast.solvers.accelerated import FastOptions
-from elastoplast.problem.options import SolverOptions
+from elastoplast.options import SolverOptions
 from elastoplast.solvers.registry import METHODS, method_options, solve
 from elastoplast.solvers.uzawa import UzawaOptions, load_sweep, solve_uzawa
 
-import importlib.metadata as _metadata
-
-try:  # declared once, in pyproject.toml; every install (pip install -e . included) records it
-    __version__ = _metadata.version("elastoplast")
-except _metadata.PackageNotFoundError:  # a source tree on sys.path, never installed: no version to claim
-    __version__ = "0+unknown"
+from elastoplast.version import __version__ as __version__
 
 __all__ = [
     "BisectionState", "Boundary", "ConicOptions", "Discretization", "FastOptions", "InputError", "KKTResiduals",

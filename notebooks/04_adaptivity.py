@@ -33,9 +33,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 
 import elastoplast as ep
-from elastoplast.adapt.loop import (AdaptOptions, adapt, draw_indicator, elements_at_gap, fitted_rate, plot_gap_curves,
-                               uniform, zoom_window)
-from elastoplast.bounds.upper import element_indicators
+from elastoplast.adapt.records import AdaptOptions, elements_at_gap, fitted_rate
+from elastoplast.adapt.loop import adapt, uniform
+from elastoplast.cli.plots import draw_indicator, plot_gap_curves, zoom_window
+from elastoplast.bounds.bracket import element_indicators
 from elastoplast.problem.definition import read_toml
 
 SMALL = os.environ.get("ELASTOPLAST_NOTEBOOK_SMALL") == "1"

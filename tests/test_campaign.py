@@ -26,7 +26,8 @@ import pytest
 import elastoplast as ep
 from elastoplast.certificate.kkt import energy_norm_sq
 from elastoplast.solvers.registry import Method
-from elastoplast.cli.campaign import compare, load_campaign, run_campaign
+from elastoplast.cli.compare import compare
+from elastoplast.cli.campaign import load_campaign, run_campaign
 from elastoplast.cli.main import main
 from elastoplast.io.store import ERROR, Store, resolve
 
@@ -186,7 +187,7 @@ def test_compare_reports_errors_against_each_reference(reference_store, client, 
 @pytest.mark.parametrize(
     "sweep, axis",
     [
-        ('"load.force" = [1000.0, -5.0]', "sweep.load.force"),  # problem.py: force must be > 0
+        ('"load.force" = [1000.0, -5.0]', "sweep.load.force"),  # problem/definition.py: force must be > 0
         ('"material.hardness" = [1.0]', "sweep.material.hardness"),  # not a key of [material]
         ('"material.hardening" = []', "sweep.material.hardening"),  # no case at all
         # the contact nodes reach x = 20 (2/6)^2 = 2.2 (12 divisions of 40 graded by 2): wider than R = 1
@@ -340,7 +341,7 @@ def test_case_id_hashes_the_resolved_input(tmp_path, monkeypatch):
 
     ref = case_id(data)
     sphere = copy.deepcopy(data)
-    sphere["obstacle"]["shape"] = "sphere"  # problem.py: a 2D sphere is the cylinder
+    sphere["obstacle"]["shape"] = "sphere"  # problem/definition.py: a 2D sphere is the cylinder
     assert case_id(sphere) == ref
     finer = copy.deepcopy(data)
     finer["mesh"]["divisions"] = [12, 8]

@@ -10,8 +10,8 @@ import meshio
 import numpy as np
 import pytest
 
-import elastoplast as ep
-from elastoplast.adapt.loop import AdaptOptions, adapt
+from elastoplast.adapt.records import AdaptOptions
+from elastoplast.adapt.loop import adapt
 from elastoplast.cli.main import main
 from elastoplast.mesh.base import read_mesh
 

@@ -34,8 +34,8 @@ from elastoplast.bounds.lower import (LowerBoundOptions, program_field, solve_pr
     solve_lower_bound, static_limit_load)
 from elastoplast.bounds.program import lower_bound_program
 from elastoplast.bounds.repair import repair_static
-from elastoplast.mesh.topology import facet_measure, facet_topology, outward_normals
-from elastoplast.fem.discretize import element_geometry
+from elastoplast.mesh.topology import facet_measure, facet_topology, outward_facet_normals
+from elastoplast.fem.assembly import element_geometry
 from elastoplast.mesh.topology import boundary_facets
 
 
@@ -163,7 +163,7 @@ def test_certificate_refuses_a_dropped_traction_row_and_raw_solver_output():
 
 def cvxpy_lower_bound(disc: ep.Discretization) -> float:
     """The equilibrium-element program written again in CVXPY, from unit outward facet
-    normals and measures (outward_normals); the unknowns are in units of the mean
+    normals and measures (outward_facet_normals); the unknowns are in units of the mean
     contact pressure S and lengths in units of the mesh's extent. Returns its optimum J."""
     import cvxpy as cp
 
@@ -178,7 +178,7 @@ def cvxpy_lower_bound(disc: ep.Discretization) -> float:
 
     def traction(elements, local_vertices, nodes, j):
         """tau n at facet vertex j of each facet, as a (facets, d) expression."""
-        nrm, _ = outward_normals(mesh, elements, nodes)
+        nrm = outward_facet_normals(mesh.points, mesh.cells, elements, nodes)
         t = sel(elements * (d + 1) + local_vertices[:, j]) @ tau  # (m, k)
         N = traction_operator(nrm)  # (m, d, k)
         return cp.hstack([cp.reshape(cp.sum(cp.multiply(N[:, r, :], t), axis=1), (-1, 1), order="F") for r in range(d)])

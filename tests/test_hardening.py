@@ -7,7 +7,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import sqlite3
 import time
 
 import numpy as np
@@ -17,7 +16,7 @@ import elastoplast as ep
 from elastoplast.solvers.registry import Method
 from elastoplast.cli.main import main
 from elastoplast.solvers.loop import within_tolerance
-from elastoplast.problem.options import LOOSEST_TOL, MAX_ITER_CEILING, TIGHTEST_TOL
+from elastoplast.options import LOOSEST_TOL, MAX_ITER_CEILING, TIGHTEST_TOL
 from elastoplast.io.output import OUTPUT_MARKER, json_text
 from elastoplast.cli.results import write_results
 

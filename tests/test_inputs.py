@@ -656,13 +656,13 @@ def test_3d_hanging_nodes(tmp_path, capsys):
 def test_hanging_node_check_alone():
     """A node on a boundary facet that is not its vertex is found by the k-d tree test
     even where ridge counts and folds cannot see it (called on its own here)."""
-    from elastoplast.mesh.checks import _check_hanging_nodes
+    from elastoplast.mesh.checks import check_hanging_nodes
 
     pts = np.array([[0, 0], [2, 0], [1, 0], [1, 1]], float)
     facets = np.array([[0, 1], [0, 2], [2, 3]])  # node 2 lies on facet 0-1
     with pytest.raises(InputError, match="hang"):
-        _check_hanging_nodes(pts, facets, "mesh.file")
-    _check_hanging_nodes(pts + [[0, 0], [0, 0], [0, 0.1], [0, 0]], facets, "mesh.file")  # off the line: none
+        check_hanging_nodes(pts, facets, "mesh.file")
+    check_hanging_nodes(pts + [[0, 0], [0, 0], [0, 0.1], [0, 0]], facets, "mesh.file")  # off the line: none
 
 
 @contextlib.contextmanager

@@ -1,7 +1,7 @@
 """Perfect plasticity: a rigid flat punch in plane strain has a limit load.
 
-Prandtl's limit pressure is (2 + pi) k with k = sigma_y / sqrt 3 (docs/
-section 8). The discrete limit load of (2.1) approaches it from above as the
+Prandtl's limit pressure is (2 + pi) k with k = sigma_y / sqrt 3 (docs/validation.md,
+"Prandtl's flat punch"). The discrete limit load of (2.1) approaches it from above as the
 mesh is refined: benchmarks/validation measured limit/Prandtl = 1.088 and 1.044
 at spacings w/4 and w/8 under the punch (w its width). Here the spacing under
 the punch is about w/6, so 0.9 Prandtl must be carried and 1.2 Prandtl must not.

@@ -28,9 +28,10 @@ from test_equilibrium import closed_form_energy
 from test_patch import E, H, NU, SY, patch_problem
 
 import elastoplast as ep
-from elastoplast.bounds.lower import (CERTIFY_TOL, CLARABEL_MAX_ELEMENTS, LOWER_BOUND_MAX_ELEMENTS, LowerBound,
-    LowerBoundOptions, SCS_FROM_ELEMENTS_3D, SCS_YIELD_MARGIN_PER_EPS, StaticField, _yield_margin,
-    check_lower_bound_size, dual_energy, lower_bound_solver, solve_lower_bound, static_limit_load)
+from elastoplast.bounds.static import CERTIFY_TOL, StaticField, dual_energy
+from elastoplast.bounds.lower import (CLARABEL_MAX_ELEMENTS, LOWER_BOUND_MAX_ELEMENTS, LowerBound, LowerBoundOptions,
+    SCS_FROM_ELEMENTS_3D, SCS_YIELD_MARGIN_PER_EPS, yield_margin, check_lower_bound_size, lower_bound_solver,
+    solve_lower_bound, static_limit_load)
 from elastoplast.fem.material import von_mises
 
 EPS = 1e-6  # SCS's tolerance in these tests (the default of LowerBoundOptions.scs_eps)
@@ -116,7 +117,7 @@ def test_scs_limit_load_and_perfect_plasticity():
     scaled = StaticField(r * ref.field.tau, ref.field.eta, ref.field.contact_facets, r * ref.field.lam,
                             r * ref.field.force)
     v_s0 = dual_energy(loaded, scaled)
-    margin = _yield_margin("scs", SCS)
+    margin = yield_margin("scs", SCS)
     assert margin == pytest.approx(SCS_YIELD_MARGIN_PER_EPS * EPS)
     allowed = margin / (1 - r) * (v_s0 - clar.J) + SCS_SLACK * abs(clar.J)
     assert scs.J - clar.J <= allowed

@@ -18,11 +18,12 @@ import scipy.sparse.linalg as spla
 
 import elastoplast as ep
 from conftest import build, cylinder_dict, energy_error, sphere_quarter_dict
-from elastoplast.linalg.amg import FaceSystems, assemble, block_layout, bsr, contact_dofs
+from elastoplast.fem.assembly import assemble, element_geometry
+from elastoplast.linalg.amg import FaceSystems, block_layout, bsr, contact_dofs
 from elastoplast.solvers.newton import NEWTON_AMG_FROM_ELEMENTS, choose_backend, energy, forcing_term
 from elastoplast.solvers.registry import CONIC_MAX_ELEMENTS
 from elastoplast.certificate.kkt import abs_transpose_product, gaps
-from elastoplast.fem.discretize import element_geometry, free_strain_operator, nondimensionalize
+from elastoplast.fem.discretize import free_strain_operator, nondimensionalize
 from elastoplast.errors import InputError
 from elastoplast.fem.material import consistent_tangent
 from elastoplast.mesh.topology import boundary_facets

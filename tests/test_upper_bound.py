@@ -24,9 +24,9 @@ from test_equilibrium import closed_form_energy
 from test_patch import E, H, NU, SY, patch_problem, uniaxial_strain
 
 import elastoplast as ep
-from elastoplast.bounds.upper import (EXPRESSION_PIECES, best_upper_bound, bounds_at, choose_delta, combine,
-    conservative_discretization, displacement_slope, enclosing_radius, energy_bounds, hencky_energy_density,
-    penetration_bound, smallest_upper_bound, u_bracket, upper_bound)
+from elastoplast.bounds.upper import (EXPRESSION_PIECES, best_upper_bound, conservative_discretization,
+    enclosing_radius, hencky_energy_density, penetration_bound, smallest_upper_bound, upper_bound)
+from elastoplast.bounds.bracket import bounds_at, choose_delta, combine, displacement_slope, energy_bounds, u_bracket
 from elastoplast.bounds.lower import solve_lower_bound
 from elastoplast.certificate.solution import value_displacement_form
 

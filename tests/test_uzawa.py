@@ -16,18 +16,9 @@ from elastoplast.certificate.kkt import gaps
 from elastoplast.cli.main import main
 from elastoplast.fem.discretize import nondimensionalize
 from elastoplast.problem.definition import read_toml
-from elastoplast.solvers.uzawa import (
-    FACTORIZATIONS,
-    UzawaOptions,
-    contact_operators,
-    factorize_metric,
-    load_sweep,
-    metric_matrix,
-    project_contact,
-    rho_bound,
-    solve_contact_qp,
-    solve_uzawa,
-)
+from elastoplast.linalg.direct import FACTORIZATIONS, factorize_spd
+from elastoplast.solvers.uzawa import UzawaOptions, load_sweep, metric_matrix, rho_bound, solve_uzawa
+from elastoplast.solvers.contact import contact_operators, project_contact, solve_contact_qp
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
 
@@ -202,7 +193,7 @@ def test_contact_qp_is_solved_exactly():
 def test_contact_step_satisfies_its_optimality_conditions():
     nd, _ = nondimensionalize(small("cylinder_2d"))
     G = metric_matrix(nd)
-    solve = factorize_metric(G)
+    solve = factorize_spd(G)
     ops = contact_operators(nd.N, solve)
     rng = np.random.default_rng(0)
     u = np.zeros(nd.n_free)

@@ -22,9 +22,12 @@ import time
 from pathlib import Path
 
 import elastoplast as ep
-from elastoplast.adapt.loop import AdaptOptions, Step, elements_at_gap, fitted_rate, uniform
+from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate
+from elastoplast.adapt.loop import uniform
 from elastoplast.problem.definition import read_toml
-from elastoplast.io.provenance import run_record
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]

@@ -24,13 +24,15 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
-import json
-import resource
+import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -130,21 +132,13 @@ def ball(mesh, share: float) -> np.ndarray:
 # ----------------------------------------------------------------------------
 
 
-def peak_rss_mb() -> float:
-    """Peak resident memory of this process (VmHWM)."""
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return float(line.split()[1]) / 1024.0
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def child(spec: dict) -> dict:
     from elastoplast.mesh.refinement import initial_state, refine
 
     kind, arg = spec["mesh"]
     mesh = make_mesh(kind, arg, Path(spec["tmp"]))
     marked = np.ones(mesh.n_elements, dtype=bool) if spec["mark"] == "all" else ball(mesh, spec["mark"])
-    before = peak_rss_mb()
+    before = peak_memory() / 2**20
     t0 = time.perf_counter()
     state = initial_state(mesh)
     t_label = time.perf_counter() - t0
@@ -162,13 +156,11 @@ def child(spec: dict) -> dict:
         row.update({"marked_again": int(marked2.sum()), "n_again": newer.n_elements,
                     "closure_extra_again": int(newer.n_elements - new.n_elements - (2**mesh.dim - 1) * marked2.sum()),
                     "refine_again_s": time.perf_counter() - t0, "max_generation": int(state.generation.max())})
-    row["peak_rss_mb"] = peak_rss_mb()
+    row["peak_rss_mb"] = peak_memory() / 2**20
     return row
 
 
 def run_timing(cases: list[dict], tmp: Path) -> list[dict]:
-    from elastoplast.io.provenance import run_child
-
     rows = []
     for spec in cases:
         spec = {**spec, "tmp": str(tmp)}
@@ -294,30 +286,21 @@ def report(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> None:
-    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
-
-    parser = record_parser(__doc__, quick="meshes of a few thousand elements, 6 rounds")
-    parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    if args.child is not None:
-        print(json.dumps(child(json.loads(args.child))))
-        return
-    import tempfile
-
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, report, study=STUDY)
-        return
+def measure(mode: str, out: Path) -> dict:
+    """Both sections, the timing cases each in its own process."""
     with tempfile.TemporaryDirectory() as tmp:
         print("timing:", flush=True)
-        timing = run_timing(QUICK_TIMING if args.quick else TIMING, Path(tmp))
+        timing = run_timing(QUICK_TIMING if mode == "quick" else TIMING, Path(tmp))
         print("quality:", flush=True)
-        rounds = 6 if args.quick else ROUNDS
-        quality = run_quality(QUALITY, rounds, Path(tmp), args.quick)
-    write_record(out, {"rounds": rounds, "timing": timing, "quality": quality}, TITLE, report, study=STUDY)
-    print(f"wrote {out / 'refine.json'} and {out / 'refine.md'}")
+        rounds = 6 if mode == "quick" else ROUNDS
+        quality = run_quality(QUALITY, rounds, Path(tmp), mode == "quick")
+    return {"rounds": rounds, "timing": timing, "quality": quality}
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "meshes of a few thousand elements, 6 rounds", HERE, TITLE, "refinement study",
+                      measure, report, argv=argv, study=STUDY, child=child)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -34,7 +34,6 @@ plane y = 0).
 from __future__ import annotations
 
 import math
-import resource
 import sys
 import time
 from dataclasses import replace
@@ -43,9 +42,13 @@ from pathlib import Path
 import numpy as np
 
 import elastoplast as ep
-from elastoplast.adapt.loop import AdaptOptions, Step, adapt, elements_at_gap, fitted_rate, plot_gap_curves, plot_indicator, uniform
+from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate
+from elastoplast.adapt.loop import adapt, uniform
+from elastoplast.cli.plots import plot_gap_curves, plot_indicator
 from elastoplast.problem.definition import read_toml
-from elastoplast.io.provenance import run_record
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -182,7 +185,7 @@ def run_all(mode: str, out: Path) -> dict:
         print(f"== {key}: {case['problem']} ==", flush=True)
         res["cases"][key] = run_case(key, case, out)
         res["cases"][key]["derived"] = derived(res["cases"][key])
-    res["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    res["peak_rss_mb"] = peak_memory() / 2**20
     return res
 
 

@@ -20,13 +20,15 @@ where P1 locks, and a 3D quarter model of a flat circular punch. Writes ``limit.
 
 from __future__ import annotations
 
-import argparse
 import json
-import resource
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -104,13 +106,12 @@ def run_one(n: int, grading: float, pattern: str, what: str) -> dict:
         out.update(F=r.F_upper, certified=r.certified, iterations=r.iterations, trace_residual=r.trace_residual,
                    solver_value=r.solver_value, message=r.message)
     out["time_s"] = time.perf_counter() - t0
-    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    out["peak_rss_mb"] = peak_memory() / 2**20
     return out
 
 
-def child(n: int, grading: float, pattern: str, what: str) -> dict:
-    from elastoplast.io.provenance import run_child
-
+def spawn(n: int, grading: float, pattern: str, what: str) -> dict:
+    """:func:`run_one` in its own process."""
     return run_child(__file__, [n, grading, pattern, what], cwd=ROOT)
 
 
@@ -175,28 +176,22 @@ def report(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> None:
-    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
-
-    ap = record_parser(__doc__, quick="crossed graded meshes n = 2, 4 and the 3D quarter at n = 2")
-    ap.add_argument("--child", help=argparse.SUPPRESS)
-    args = ap.parse_args(argv)
-    if args.child:
-        n, g, pat, what = json.loads(args.child)
-        print(json.dumps(run_one(int(n), float(g), pat, what)))
-        return
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, report, study=STUDY)
-        return
+def measure(mode: str, out: Path) -> dict:
+    quick = mode == "quick"
     results = {"prandtl": PRANDTL, "runs": []}
-    runs = (QUICK if args.quick else FULL) + [(n, 1.0, "3d", w) for n, w in (QUICK_3D if args.quick else FULL_3D)]
+    runs = (QUICK if quick else FULL) + [(n, 1.0, "3d", w) for n, w in (QUICK_3D if quick else FULL_3D)]
     for n, g, pat, what in runs:
-        res = child(n, g, pat, what)
+        res = spawn(n, g, pat, what)
         results["runs"].append({"n": n, "grading": g, "pattern": pat, "what": what, "result": res})
         print(json.dumps(results["runs"][-1]), flush=True)
-    write_record(out, results, TITLE, report, study=STUDY)
+    return results
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "crossed graded meshes n = 2, 4 and the 3D quarter at n = 2", HERE, TITLE,
+                      "limit-load study", measure, report, argv=argv, study=STUDY,
+                      child=lambda spec: run_one(*spec))
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

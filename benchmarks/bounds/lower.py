@@ -4,7 +4,7 @@
 
 On the 2D cylinder (problems/cylinder_2d.toml, graded) and the 3D quarter sphere
 (problems/sphere_quarter_3d.toml, two symmetry planes) at a few sizes, each solve runs
-in its own process so that its peak memory (ru_maxrss) is its own: ``ep.solve(disc,
+in its own process so that its peak memory (VmHWM) is its own: ``ep.solve(disc,
 "conic")`` (value_D = Pi at the P1 solution) and ``solve_lower_bound`` (the bound
 -J <= Pi*, its certificate, the phases' timings). 3D cases also run the lower bound
 with Clarabel's faer factorisation. Writes ``lower.json`` and ``lower.md`` beside this
@@ -14,12 +14,14 @@ file (or into ``--out``; ``--quick`` writes into ``benchmarks/bounds/quick/``);
 
 from __future__ import annotations
 
-import argparse
 import copy
 import json
-import resource
+import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -59,13 +61,12 @@ def run_one(problem: str, divisions, what: str) -> dict:
         out.update(time_s=time.perf_counter() - t0, lower=-lb.J, J_solver=lb.J_solver, certified=lb.certified,
                    certificate_worst=lb.certificate.worst, repair_residual=lb.repair_residual,
                    iterations=lb.iterations, timings=lb.timings, status=lb.status.value, message=lb.message)
-    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    out["peak_rss_mb"] = peak_memory() / 2**20
     return out
 
 
-def child(problem: str, divisions, what: str) -> dict:
-    from elastoplast.io.provenance import run_child
-
+def spawn(problem: str, divisions, what: str) -> dict:
+    """:func:`run_one` in its own process."""
     return run_child(__file__, [problem, list(divisions), what], cwd=ROOT)
 
 
@@ -107,35 +108,28 @@ def report(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> None:
-    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
-
-    ap = record_parser(__doc__, quick="the cylinder at 576 and 1,600 triangles, the 3D quarter at 3 x 3 x 3")
-    ap.add_argument("--child", help=argparse.SUPPRESS)
-    ap.add_argument("--skip-qdldl-from", type=int, default=1000,
-                    help="3D: run the lower bound with qdldl only below this many elements (it is 2-3x slower than faer)")
-    args = ap.parse_args(argv)
-    if args.child:
-        problem, div, what = json.loads(args.child)
-        print(json.dumps(run_one(problem, tuple(div), what)))
-        return
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, report, study=STUDY)
-        return
+def measure(mode: str, out: Path, skip_qdldl_from: int) -> dict:
     results = {"cases": []}
-    for problem, sizes in (QUICK if args.quick else CASES).items():
+    for problem, sizes in (QUICK if mode == "quick" else CASES).items():
         for div in sizes:
-            case = {"problem": problem, "divisions": list(div), "conic": child(problem, div, "conic")}
+            case = {"problem": problem, "divisions": list(div), "conic": spawn(problem, div, "conic")}
             n = case["conic"].get("n_elements", 0)
-            if problem.endswith("2d") or n < args.skip_qdldl_from:
-                case["lower-qdldl"] = child(problem, div, "lower-qdldl")
+            if problem.endswith("2d") or n < skip_qdldl_from:
+                case["lower-qdldl"] = spawn(problem, div, "lower-qdldl")
             if problem.endswith("3d"):
-                case["lower-faer"] = child(problem, div, "lower-faer")
+                case["lower-faer"] = spawn(problem, div, "lower-faer")
             results["cases"].append(case)
             print(json.dumps(case), flush=True)
-    write_record(out, results, TITLE, report, study=STUDY)
+    return results
+
+
+def main(argv=None) -> int:
+    skip = {"type": int, "default": 1000,
+            "help": "3D: run the lower bound with qdldl only below this many elements (it is 2-3x slower than faer)"}
+    return run_record(__doc__, "the cylinder at 576 and 1,600 triangles, the 3D quarter at 3 x 3 x 3", HERE, TITLE,
+                      "lower-bound study", measure, report, argv=argv, study=STUDY,
+                      child=lambda spec: run_one(*spec), options={"--skip-qdldl-from": skip})
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -15,11 +15,13 @@ its own process. Writes ``memory.json`` and ``memory.md``.
 
 from __future__ import annotations
 
-import argparse
-import json
 import resource
+import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -30,7 +32,7 @@ CASES = {"full": [("sphere_quarter_3d", [16, 16, 16]), ("cylinder_2d", [160, 80]
 
 
 def _peak_gb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e9
+    return peak_memory() / 1e9
 
 
 def _current_gb() -> float:
@@ -40,7 +42,8 @@ def _current_gb() -> float:
 def measure_case(name: str, divisions: list[int]) -> dict:
     """One case, in this process: P1 solve, lower bound at F, U bracket."""
     import elastoplast as ep
-    from elastoplast.bounds.upper import best_upper_bound, combine, u_bracket_of
+    from elastoplast.bounds.upper import best_upper_bound
+    from elastoplast.bounds.bracket import combine, u_bracket_of
     from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_bytes, lower_bound_solver, solve_lower_bound
 
     data = ep.read_toml(ROOT / "problems" / f"{name}.toml")
@@ -83,27 +86,19 @@ def render(res: dict) -> str:
             + "\n".join(rows) + "\n")
 
 
-def main(argv=None) -> None:
-    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, run_child, write_record
-
-    ap = record_parser(__doc__, quick="the 3D quarter at 384 tetrahedra and the 2D cylinder at 400 triangles")
-    ap.add_argument("--child", help=argparse.SUPPRESS)
-    args = ap.parse_args(argv)
-    if args.child:
-        print(json.dumps(measure_case(*json.loads(args.child))))
-        return
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, render, study=STUDY)
-        return
+def measure(mode: str, out: Path) -> dict:
     cases = []
-    for name, divs in CASES["quick" if args.quick else "full"]:
-        cases.append(run_child(__file__, [name, divs]))
-        if "error" in cases[-1]:
-            raise SystemExit(f"{name} {divs}: {cases[-1]['error']}")
+    for name, divs in CASES[mode]:
+        cases.append(run_child(__file__, [name, divs], check=True))
         print(cases[-1], flush=True)
-    write_record(out, {"cases": cases}, TITLE, render, study=STUDY)
+    return {"cases": cases}
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "the 3D quarter at 384 tetrahedra and the 2D cylinder at 400 triangles", HERE, TITLE,
+                      "lower-bound memory study", measure, render, argv=argv, study=STUDY,
+                      child=lambda spec: measure_case(*spec))
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

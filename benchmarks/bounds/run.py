@@ -13,7 +13,7 @@ Families (each a sequence of meshes of one problem):
   problems/make_punch_mesh.py with its element sizes times a factor (needs gmsh, the
   ``mesh`` extra; skipped without it).
 
-Per mesh, two processes (so that each peak memory is its own, ``ru_maxrss``):
+Per mesh, two processes (so that each peak memory is its own, VmHWM):
 
 * ``bounds``: the (S) conic solve, timed and its peak memory read at once, then
   :func:`elastoplast.bounds.upper.certified_bounds` with that solution: the energy bracket,
@@ -33,8 +33,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-import resource
-import subprocess
 import sys
 import tempfile
 import time
@@ -44,7 +42,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -135,10 +134,6 @@ def write_punch_mesh(factor: float, folder: Path) -> Path:
     return path
 
 
-def peak_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-
-
 def contact_extent(disc, sol=None) -> dict:
     """Γ0 as the mesh defines it: its measure, ``rim``: the distance from the
     obstacle's centre to the nearest point of its rim (its boundary within the
@@ -147,7 +142,7 @@ def contact_extent(disc, sol=None) -> dict:
     The continuum problem of a mesh is that of its Γ0; the problems of two meshes
     have the same solution when its contact set lies inside both Γ0."""
     from elastoplast.bounds.upper import contact_facets
-    from elastoplast.bounds.lower import facet_measure
+    from elastoplast.mesh.topology import facet_measure
 
     mesh, d = disc.mesh, disc.dim
     facets = contact_facets(disc)
@@ -179,14 +174,14 @@ def contact_extent(disc, sol=None) -> dict:
 def run_bounds(family: str, size, mesh_file: str | None) -> dict:
     """The conic solve (timed, its own peak memory) and the certified bounds."""
     import elastoplast as ep
-    from elastoplast.bounds.upper import certified_bounds
+    from elastoplast.bounds.bracket import certified_bounds
 
     disc = build(family, size, mesh_file)
-    base = peak_mb()
+    base = peak_memory() / 2**20
     t0 = time.perf_counter()
     sol = ep.solve(disc, "conic")
     conic_s = time.perf_counter() - t0
-    conic_mb = peak_mb()
+    conic_mb = peak_memory() / 2**20
     bracket = disc.n_elements <= BRACKET_MAX_ELEMENTS[disc.dim]
     t0 = time.perf_counter()
     rep = certified_bounds(disc, sol, bracket=bracket)
@@ -194,7 +189,7 @@ def run_bounds(family: str, size, mesh_file: str | None) -> dict:
         "elements": int(disc.n_elements), "nodes": int(disc.mesh.n_nodes), "dim": int(disc.dim),
         "U_h": float(sol.U), "value_D": float(sol.value_D), "status": sol.status.value, "kkt_worst": float(sol.kkt.worst),
         "conic_s": conic_s, "conic_peak_mb": conic_mb, "start_mb": base,
-        "bounds_s": time.perf_counter() - t0, "bounds_peak_mb": peak_mb(), "bracket": bracket,
+        "bounds_s": time.perf_counter() - t0, "bounds_peak_mb": peak_memory() / 2**20, "bracket": bracket,
         **contact_extent(disc, sol), **rep.as_dict(),
     }
 
@@ -204,22 +199,24 @@ def run_lower(family: str, size, mesh_file: str | None) -> dict:
     from elastoplast.bounds.lower import solve_lower_bound
 
     disc = build(family, size, mesh_file)
-    base = peak_mb()
+    base = peak_memory() / 2**20
     t0 = time.perf_counter()
     lb = solve_lower_bound(disc)
-    return {"lower_s": time.perf_counter() - t0, "lower_peak_mb": peak_mb(), "start_mb": base,
+    return {"lower_s": time.perf_counter() - t0, "lower_peak_mb": peak_memory() / 2**20, "start_mb": base,
             "energy_lower": -lb.J, "certified": lb.certified, "iterations": lb.iterations,
             "phases_s": lb.timings, "message": lb.message}
 
 
-def child(what: str, family: str, size, mesh_file: str | None) -> dict:
-    """Run ``what`` ('bounds' or 'lower') in a fresh process; its last stdout line is the JSON."""
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", what, family, json.dumps(size), str(mesh_file)]
-    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-    if res.returncode != 0:
-        lines = res.stderr.strip().splitlines()
-        return {"error": lines[-1] if lines else f"exit code {res.returncode}"}
-    return json.loads(res.stdout.strip().splitlines()[-1])
+def child(spec: list) -> dict:
+    """``[what, family, size, mesh_file]`` in this process: :func:`run_bounds` (what
+    'bounds') or :func:`run_lower` ('lower')."""
+    what, family, size, mesh_file = spec
+    return (run_bounds if what == "bounds" else run_lower)(family, size, mesh_file)
+
+
+def spawn(what: str, family: str, size, mesh_file: str | None) -> dict:
+    """Run ``what`` ('bounds' or 'lower') in a fresh process."""
+    return run_child(__file__, [what, family, size, mesh_file], cwd=ROOT)
 
 
 # ----------------------------------------------------------------------------
@@ -257,7 +254,7 @@ def rates(rows: list[dict]) -> dict:
     three (:func:`elastoplast.adapt.loop.fitted_rate`), and per step; ``p_h = d p`` is the
     exponent in the mesh size h ~ elements^(-1/d); ``factor`` the gap's drop per step and
     ``per_halving`` the drop per halving of h that each step's exponent implies."""
-    from elastoplast.adapt.loop import fitted_rate
+    from elastoplast.adapt.records import fitted_rate
 
     steps = [SimpleNamespace(n_elements=r["elements"], gap_rel=r["energy_gap_rel"]) for r in rows]
     n = np.array([r["elements"] for r in rows], dtype=float)
@@ -293,9 +290,9 @@ def run_family(family: str, sizes: list, folder: Path) -> dict:
     rows = []
     for size in sizes:
         mesh_file = str(write_punch_mesh(size, folder)) if FAMILIES[family]["mesh"] == "gmsh" else None
-        row = {"size": size, **child("bounds", family, size, mesh_file)}
+        row = {"size": size, **spawn("bounds", family, size, mesh_file)}
         if "error" not in row:
-            low = child("lower", family, size, mesh_file)
+            low = spawn("lower", family, size, mesh_file)
             if "error" in low:
                 row["error"] = f"lower: {low['error']}"
             else:
@@ -469,23 +466,16 @@ def _save(fig, axes, ylabel: str, path: Path, grid: bool = False, fontsize: int 
     plt.close(fig)
 
 
-def main(argv=None) -> None:
-    if argv is None and len(sys.argv) > 1 and sys.argv[1] == "--child":
-        what, family, size, mesh_file = sys.argv[2:6]
-        run = run_bounds if what == "bounds" else run_lower
-        print(json.dumps(run(family, json.loads(size), None if mesh_file == "None" else mesh_file)))
-        return
-    args = record_parser(__doc__, "small meshes, about a minute").parse_args(argv)
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        res = rewrite_report(out, TITLE, render)
-    else:
-        from elastoplast.io.output import strict
+def measure(mode: str, out: Path) -> dict:
+    from elastoplast.io.output import strict
 
-        res = write_record(out, strict(run_all("quick" if args.quick else "full")), TITLE, render)
-    plots(res, out)
-    print((out / "REPORT.md").read_text())
+    return strict(run_all(mode))
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "small meshes, about a minute", HERE, TITLE, "bounds benchmark", measure, render, plots,
+                      argv=argv, child=child)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

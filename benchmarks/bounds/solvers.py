@@ -28,9 +28,12 @@ from __future__ import annotations
 
 import copy
 import json
-import resource
+import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -79,22 +82,24 @@ def _clarabel_variant(disc, settings: dict) -> dict:
     import clarabel
     import numpy as np
 
-    from elastoplast.bounds.lower import (LowerBoundOptions, _kkt_solver, _repaired_field, _setup, certify_static,
-        dual_energy, lower_bound_program, mass_matrix, solve_lower_bound, static_limit_load)
-    from elastoplast.solvers.conic import ConicOptions, clarabel_settings
+    from elastoplast.bounds.lower import (LowerBoundOptions, lower_bound_kkt_solver, repaired_field, lower_bound_setup)
+    from elastoplast.bounds.static import certify_static, dual_energy
+    from elastoplast.bounds.program import lower_bound_program
+    from elastoplast.solvers.conic import ConicOptions
+    from elastoplast.solvers.backends import clarabel_settings
 
     settings = dict(settings)
     options = LowerBoundOptions(max_elements=10**8, ip_tol=settings.pop("ip_tol", 1e-9))
-    s = _setup(disc, options)
+    s = lower_bound_setup(disc, options)
     q_nd = s.psi.q / (s.units.displacement * s.units.length ** (disc.dim - 1))
     prog = lower_bound_program(s.nd, s.topo, s.grads, q_nd)
-    st = clarabel_settings(ConicOptions(ip_tol=options.ip_tol), _kkt_solver(disc, options))
+    st = clarabel_settings(ConicOptions(ip_tol=options.ip_tol), lower_bound_kkt_solver(disc, options))
     for k, v in settings.items():
         setattr(st, k, v)
     t0 = time.perf_counter()
     res = clarabel.DefaultSolver(prog.P, prog.q, prog.A, prog.b, prog.cones, st).solve()
     t_solve = time.perf_counter() - t0
-    field, resid, _ = _repaired_field(disc, s, prog, np.asarray(res.x))
+    field, resid, _ = repaired_field(disc, s, prog, np.asarray(res.x))
     cert = certify_static(disc, field, options.tol)
     return dict(lower=-dual_energy(disc, field, s.psi), certified=bool(cert.passed and s.psi.rigorous),
                 certificate_worst=cert.worst, iterations=int(res.iterations), status=str(res.status).split(".")[-1],
@@ -106,10 +111,12 @@ def _schur(disc) -> dict:
     import numpy as np
     import scipy.sparse as sp
 
-    from elastoplast.bounds.lower import (LowerBoundOptions, _kkt_solver, _repaired_field, _setup, certify_static, dual_energy, lower_bound_program, mass_matrix, solve_lower_bound, static_limit_load)
-    from elastoplast.solvers.uzawa import FACTORIZATIONS
+    from elastoplast.bounds.lower import (LowerBoundOptions, lower_bound_setup)
+    from elastoplast.bounds.static import mass_matrix
+    from elastoplast.bounds.program import lower_bound_program
+    from elastoplast.linalg.direct import FACTORIZATIONS
 
-    s = _setup(disc, LowerBoundOptions(max_elements=10**8))
+    s = lower_bound_setup(disc, LowerBoundOptions(max_elements=10**8))
     prog = lower_bound_program(s.nd, s.topo, s.grads, s.psi.q)
     d, n = disc.dim, disc.n_elements
     lam = prog.cols["lam"]
@@ -132,7 +139,8 @@ def _schur(disc) -> dict:
 
 def run_one(problem: str, divisions, material: dict, method: str) -> dict:
     """One measurement in this process."""
-    from elastoplast.bounds.lower import (LowerBoundOptions, _kkt_solver, _repaired_field, _setup, certify_static, dual_energy, lower_bound_program, mass_matrix, solve_lower_bound, static_limit_load)
+    from elastoplast.bounds.lower import (LowerBoundOptions, solve_lower_bound,
+        static_limit_load)
 
     disc = _disc(problem, divisions, material)
     out = {"n_elements": int(disc.n_elements)}
@@ -153,13 +161,12 @@ def run_one(problem: str, divisions, material: dict, method: str) -> dict:
                    iterations=lb.iterations, status=lb.status.value, solve_s=lb.timings["solve"],
                    repair_s=lb.timings["repair"], repair_residual=lb.repair_residual, message=lb.message)
     out["time_s"] = time.perf_counter() - t0
-    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    out["peak_rss_mb"] = peak_memory() / 2**20
     return out
 
 
-def child(problem: str, divisions, material: dict, method: str) -> dict:
-    from elastoplast.io.provenance import run_child
-
+def spawn(problem: str, divisions, material: dict, method: str) -> dict:
+    """:func:`run_one` in its own process."""
     return run_child(__file__, [problem, list(divisions), material, method], cwd=ROOT)
 
 
@@ -245,29 +252,22 @@ def render(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> None:
-    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
-
-    ap = record_parser(__doc__, quick="the 3D quarter at 162 tetrahedra and the 2D cylinder at 576 triangles")
-    ap.add_argument("--child", help=__import__("argparse").SUPPRESS)
-    args = ap.parse_args(argv)
-    if args.child:
-        problem, div, material, method = json.loads(args.child)
-        print(json.dumps(run_one(problem, tuple(div), material, method)))
-        return
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, render, study=STUDY)
-        return
+def measure(mode: str, out: Path) -> dict:
     cases = []
-    for problem, div, material, methods in (QUICK if args.quick else FULL):
+    for problem, div, material, methods in (QUICK if mode == "quick" else FULL):
         case = {"problem": problem, "divisions": list(div), "material": material, "runs": {}}
         for method in methods:
-            case["runs"][method] = child(problem, div, material, method)
+            case["runs"][method] = spawn(problem, div, material, method)
             print(problem, div, material, method, json.dumps(case["runs"][method]), flush=True)
         cases.append(case)
-    write_record(out, {"cases": cases}, TITLE, render, study=STUDY)
+    return {"cases": cases}
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "the 3D quarter at 162 tetrahedra and the 2D cylinder at 576 triangles", HERE, TITLE,
+                      "lower-bound solvers study", measure, render, argv=argv, study=STUDY,
+                      child=lambda spec: run_one(*spec))
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

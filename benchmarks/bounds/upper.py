@@ -24,10 +24,14 @@ from __future__ import annotations
 
 import copy
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -57,8 +61,8 @@ def timed(fn, *args, **kw):
 
 def energy_case(problem: str, divisions) -> dict:
     import elastoplast as ep
-    from elastoplast.bounds.upper import (bounds_at, choose_delta, combine, conservative_discretization,
-        displacement_slope, energy_bounds, u_bracket, upper_bound)
+    from elastoplast.bounds.bracket import (combine)
+    from elastoplast.bounds.upper import conservative_discretization, upper_bound
     from elastoplast.bounds.lower import solve_lower_bound
 
     disc = disc_of(problem, divisions)
@@ -88,7 +92,8 @@ def energy_case(problem: str, divisions) -> dict:
 
 
 def u_case(divisions, U_ref: dict) -> dict:
-    from elastoplast.bounds.upper import (bounds_at, choose_delta, combine, conservative_discretization, displacement_slope, energy_bounds, u_bracket, upper_bound)
+    from elastoplast.bounds.bracket import (bounds_at, choose_delta, displacement_slope, energy_bounds,
+        u_bracket)
 
     disc = disc_of("cylinder_2d", divisions)
     (b, t_b) = timed(energy_bounds, disc)
@@ -176,11 +181,9 @@ def measure(mode: str, out: Path) -> dict:
 
 
 def main(argv=None) -> int:
-    from elastoplast.io.provenance import run_record
-
     return run_record(__doc__, "the cylinder at 400 and 1,600 triangles, the 3D quarter at 3 x 3 x 3", HERE, TITLE,
                       "upper-bound study", measure, report, argv=argv, study=STUDY)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

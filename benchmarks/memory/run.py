@@ -1,25 +1,25 @@
 """Memory of building a mesh and its Discretization: measured peak RSS against
-``elastoplast.mesh.checks.discretization_bytes``, and meshio's peak against
+``elastoplast.limits.discretization_bytes``, and meshio's peak against
 ``mesh_read_bytes``.
 
     python benchmarks/memory/run.py             # full run: results.json, REPORT.md in this folder
     python benchmarks/memory/run.py --quick     # small cases, into quick/ (not committed)
     python benchmarks/memory/run.py --report    # only REPORT.md again, from results.json
 
-Each case runs in a fresh process (``resource.getrusage`` peak RSS is per process);
-the figure is the peak over the RSS the process had after importing elastoplast.
+Each case runs in a fresh process and reads its own peak RSS (VmHWM,
+``harness.peak_memory``); the figure is the peak over the RSS the process had
+after importing elastoplast.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import resource
-import subprocess
 import sys
 import tempfile
 import warnings
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 
@@ -43,38 +43,25 @@ def problem_dict(dim: int, divisions: list[int]) -> dict:
             "material": {"E": 2e5, "nu": 0.3, "yield_stress": 1500.0, "hardening": 1e4}}
 
 
-def _status_kib(key: str) -> int:
-    with open("/proc/self/status") as fh:
-        return int(next(line.split()[1] for line in fh if line.startswith(key + ":")))
-
-
 def reset_peak() -> int:
-    """Reset the peak RSS to the current RSS (Linux: ``echo 5 > /proc/self/clear_refs``)
-    and return it in bytes; without /proc, the peak so far (``getrusage``)."""
+    """Reset this process's peak RSS to its current RSS (``echo 5 > /proc/self/clear_refs``)
+    and return it in bytes; where the reset is refused, the peak so far."""
     try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")
-        return _status_kib("VmRSS") * 1024
+        Path("/proc/self/clear_refs").write_text("5")
     except OSError:
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-
-
-def peak_rss() -> int:
-    try:
-        return _status_kib("VmHWM") * 1024
-    except OSError:
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        pass
+    return peak_memory()
 
 
 def worker_build(dim: int, divisions: list[int]) -> dict:
     import elastoplast as ep
-    from elastoplast.mesh.checks import discretization_bytes, structured_counts
+    from elastoplast.limits import discretization_bytes, structured_counts
 
     before = reset_peak()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         disc = ep.discretize(ep.problem_from_dict(problem_dict(dim, divisions)))
-    measured = peak_rss() - before
+    measured = peak_memory() - before
     estimate = discretization_bytes(dim, *structured_counts(divisions))
     return {"dim": dim, "divisions": divisions, "n_elements": disc.n_elements, "n_nodes": disc.mesh.n_nodes,
             "measured_bytes": measured, "estimate_bytes": estimate, "ratio": measured / estimate}
@@ -94,16 +81,22 @@ def worker_read(path: str, traced: bool) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         meshio.read(path)
-    measured = tracemalloc.get_traced_memory()[1] if traced else peak_rss() - before
+    measured = tracemalloc.get_traced_memory()[1] if traced else peak_memory() - before
     return {"measured_bytes": measured}
 
 
+def child(spec: list) -> dict:
+    """``["build", dim, divisions]`` or ``["read", path, traced]``, in this process."""
+    kind, *rest = spec
+    return worker_build(*rest) if kind == "build" else worker_read(*rest)
+
+
 def measure_read(path: Path) -> dict:
-    from elastoplast.mesh.checks import mesh_read_bytes
+    from elastoplast.limits import mesh_read_bytes
 
     size = path.stat().st_size
-    rss = run_worker("read", str(path), "rss")["measured_bytes"]
-    traced = run_worker("read", str(path), "traced")["measured_bytes"]
+    rss = run_child(__file__, ["read", str(path), False], check=True)["measured_bytes"]
+    traced = run_child(__file__, ["read", str(path), True], check=True)["measured_bytes"]
     return {"file": path.name, "size_bytes": size, "rss_bytes": rss, "traced_bytes": traced,
             "rss_per_file_byte": rss / size, "traced_per_file_byte": traced / size,
             "factor": mesh_read_bytes(path, size) // size}
@@ -134,12 +127,6 @@ def write_mesh_files(dim: int, divisions: list[int], folder: Path) -> list[Path]
     return paths
 
 
-def run_worker(*args: str) -> dict:
-    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--worker", *args], capture_output=True,
-                         text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
 TITLE = "Memory of the input stage: estimates against measured peaks"
 
 
@@ -158,31 +145,20 @@ def markdown(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
-    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
-
-    parser = record_parser(__doc__)
-    parser.add_argument("--worker", nargs="+", help=argparse.SUPPRESS)
-    args = parser.parse_args()
-    if args.worker:
-        kind, *rest = args.worker
-        print(json.dumps(worker_build(int(rest[0]), json.loads(rest[1])) if kind == "build"
-                         else worker_read(rest[0], rest[1] == "traced")))
-        return
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, markdown)
-        return
-    level = "quick" if args.quick else "full"
-    builds = [run_worker("build", str(dim), json.dumps(div)) for dim, div in BUILD[level]]
+def measure(mode: str, out: Path) -> dict:
+    """Every case of ``mode``, each in its own process."""
+    builds = [run_child(__file__, ["build", dim, div], check=True) for dim, div in BUILD[mode]]
     reads = []
     with tempfile.TemporaryDirectory() as tmp:
-        for dim, div in READ[level]:
+        for dim, div in READ[mode]:
             for path in write_mesh_files(dim, div, Path(tmp)):
                 reads.append({"dim": dim, **measure_read(path)})
-    results = write_record(out, {"quick": args.quick, "build": builds, "read": reads}, TITLE, markdown)
-    print(markdown(results))
+    return {"quick": mode == "quick", "build": builds, "read": reads}
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "small cases", HERE, TITLE, "memory benchmark", measure, markdown, argv=argv, child=child)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -28,8 +28,10 @@ from pathlib import Path
 import elastoplast as ep
 from elastoplast.solvers.accelerated import FastOptions, solve_alg2, solve_uzawa_fast
 from elastoplast.problem.definition import problem_from_dict, read_toml
-from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 from elastoplast.solvers.uzawa import UzawaOptions, solve_uzawa
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 PROBLEMS = HERE.parents[1] / "problems"
@@ -145,22 +147,21 @@ def markdown(res: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
-    args = record_parser(__doc__, "a few small cases").parse_args(argv)
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, markdown, study="accelerated")
-        return 0
+def measure(mode: str, out: Path) -> dict:
+    quick = mode == "quick"
     t0 = time.perf_counter()
-    res = {"quick": args.quick, "machine": {"cpus": os.cpu_count(), "loadavg_start": os.getloadavg()}}
-    res["sweep"] = penalty_sweep(args.quick)
-    res["comparison"] = comparison(args.quick)
+    res = {"quick": quick, "machine": {"cpus": os.cpu_count(), "loadavg_start": os.getloadavg()}}
+    res["sweep"] = penalty_sweep(quick)
+    res["comparison"] = comparison(quick)
     res["machine"]["loadavg_end"] = os.getloadavg()
     res["run_s"] = time.perf_counter() - t0
-    write_record(out, res, TITLE, markdown, study="accelerated")
-    print(f"done in {res['run_s']:.0f} s", file=sys.stderr)
-    return 0
+    return res
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "a few small cases", HERE, TITLE, "accelerated study", measure, markdown, argv=argv,
+                      study="accelerated")
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

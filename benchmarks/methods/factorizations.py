@@ -14,6 +14,7 @@ this file (``--out`` to change).
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -22,9 +23,12 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 import elastoplast as ep
-from elastoplast.fem.discretize import _rigid_motions, nondimensionalize
+from elastoplast.fem.assembly import rigid_motions
+from elastoplast.fem.discretize import nondimensionalize
 from elastoplast.problem.definition import problem_from_dict, read_toml
-from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 TITLE = "Linear solvers for Newton's systems: one elastic stiffness K of the 3D sphere"
@@ -51,15 +55,8 @@ def markdown(out: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> int:
-    p = record_parser(__doc__, f"divisions {QUICK}")
-    p.add_argument("divisions", nargs="*", type=int, help=f"mesh divisions NX NY NZ (default {DEFAULT})")
-    args = p.parse_args(argv)
-    out_dir = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out_dir, TITLE, markdown, study="factorizations")
-        return 0
-    div = args.divisions[:3] or (QUICK if args.quick else DEFAULT)
+def measure(mode: str, out_dir: Path, divisions: list[int]) -> dict:
+    div = divisions[:3] or (QUICK if mode == "quick" else DEFAULT)
     d = read_toml(HERE.parents[1] / "problems" / "sphere_block_3d.toml")
     d["mesh"]["divisions"] = div
     disc = ep.discretize(problem_from_dict(d, HERE.parents[1] / "problems"))
@@ -105,7 +102,7 @@ def main(argv=None) -> int:
 
     from elastoplast.linalg.amg import one_blas_thread
 
-    modes = _rigid_motions(disc.mesh.points)[disc.free]
+    modes = rigid_motions(disc.mesh.points)[disc.free]
     # the settings of elastoplast.linalg.amg.AMG: pyamg's default coarse solver (a pseudo-inverse)
     # recomputes an SVD at every cycle, which made this row 8x slower than the package's path
     ml, t = timed(lambda: pyamg.smoothed_aggregation_solver(K, B=modes, max_coarse=500, coarse_solver="splu",
@@ -117,9 +114,14 @@ def main(argv=None) -> int:
 
     for name, row in out["solvers"].items():
         print(name, {k: round(v, 3) if isinstance(v, float) and v > 1e-3 else v for k, v in row.items()})
-    write_record(out_dir, out, TITLE, markdown, study="factorizations")
-    return 0
+    return out
+
+
+def main(argv=None) -> int:
+    divisions = {"nargs": "*", "type": int, "help": f"mesh divisions NX NY NZ (default {DEFAULT})"}
+    return run_record(__doc__, f"divisions {QUICK}", HERE, TITLE, "factorizations study", measure, markdown,
+                      argv=argv, study="factorizations", options={"divisions": divisions})
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

@@ -6,7 +6,7 @@
 
 The 3D crossover is read off the main run (run.py); this measures the same
 cases on the 2D plane-strain problem, where direct factorisations fill in far
-less. Each case runs in its own process (run.py's ``--case``); answers are
+less. Each case runs in its own process (run.py's ``spawn``); answers are
 compared with the direct Newton answer. Writes ``crossover.json`` and ``crossover.md``
 beside this file (``--out`` to change).
 """
@@ -16,6 +16,9 @@ from __future__ import annotations
 import sys
 import tempfile
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -56,11 +59,9 @@ def measure(mode: str, out: Path) -> dict:
 
 
 def main(argv=None) -> int:
-    from elastoplast.io.provenance import run_record
-
     return run_record(__doc__, "m = 40, 80", HERE, TITLE, "2D crossover study", measure, render, argv=argv,
                       study=STUDY)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -14,14 +14,15 @@ Writes ``meshfile.json`` and ``meshfile.md`` beside this file (``--out`` to chan
 
 from __future__ import annotations
 
-import argparse
-import json
-import resource
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -69,7 +70,7 @@ def measure(n: int, mesh_file: str) -> dict:
     sig = {"volume": float(disc.volumes.sum()), "n_free": int(disc.n_free), "n_contact": int(disc.n_contact),
            "psi_sum": float(disc.psi.sum()), "B_nnz": int(disc.B.nnz), "contact_area": float(disc.contact_area.sum())}
     return {"n_elements": disc.n_elements, "mesh_s": t1 - t0, "discretize_s": t2 - t1,
-            "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, "signature": sig}
+            "peak_gb": peak_memory() / 1e9, "signature": sig}
 
 
 def render(res: dict) -> str:
@@ -83,37 +84,24 @@ def render(res: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> None:
-    from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, run_child, write_record
-
-    ap = record_parser(__doc__, quick="12k tetrahedra (n = 8)")
-    ap.add_argument("--measure", help=argparse.SUPPRESS)
-    args = ap.parse_args(argv)
-    if args.measure:
-        n, mesh_file = json.loads(args.measure)
-        print(json.dumps(measure(int(n), mesh_file)))
-        return
-    out = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out, TITLE, render, study=STUDY)
-        return
-    n = 8 if args.quick else 35
+def run_both(mode: str, out: Path) -> dict:
+    """Write the file, then :func:`measure` the generator and the file, each in its own process."""
+    n = 8 if mode == "quick" else 35
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "box.msh"
         t0 = time.perf_counter()
         write_gmsh(n, path)
         t_write = time.perf_counter() - t0
-        runs = {}
-        for label, arg in (("generator", "-"), ("file", str(path))):
-            runs[label] = run_child(__file__, [n, arg], flag="--measure")
-            if "error" in runs[label]:
-                raise SystemExit(f"{label}: {runs[label]['error']}")
+        runs = {label: run_child(__file__, [n, arg], check=True) for label, arg in (("generator", "-"), ("file", str(path)))}
         size_mb = path.stat().st_size / 1e6
     same = runs["generator"]["signature"] == runs["file"]["signature"]
-    res = write_record(out, {"n": n, "write_s": t_write, "file_mb": size_mb, "runs": runs, "same_operators": same},
-                       TITLE, render, study=STUDY)
-    print(render(res))
+    return {"n": n, "write_s": t_write, "file_mb": size_mb, "runs": runs, "same_operators": same}
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "12k tetrahedra (n = 8)", HERE, TITLE, "mesh-file study", run_both, render, argv=argv,
+                      study=STUDY, child=lambda spec: measure(*spec))
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

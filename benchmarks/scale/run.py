@@ -6,7 +6,7 @@
 
 The problem is the built-in default (a sphere pressed into a clamped block) with
 ``[mesh] divisions = [2n, 2n, n]`` (24 n^3 tetrahedra). Each case runs in its
-own process, so its peak memory (``ru_maxrss``, which includes the mesh and the
+own process, so its peak memory (VmHWM, which includes the mesh and the
 discretisation) is its own: newton, uzawa and uzawa-fast to KKT <= 1e-8 on the
 iterative path (AMG-CG) and on the direct one where it fits, one linear elastic
 solve by AMG-CG (relative residual 1e-10) and by PARDISO where it fits, and the
@@ -23,15 +23,16 @@ after every case (an interrupted run keeps what it measured).
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import resource
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record, write_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -74,7 +75,8 @@ def discretization(n: int, dim: int = 3):
 def elastic_amg(disc) -> dict:
     """One elastic solve K u = f (f: the force spread evenly over the contact
     nodes): block assembly, AMG set-up, CG to relative residual 1e-10."""
-    from elastoplast.linalg.amg import (AMG, BorderedSystem, assemble, block_layout, bsr, constrain, near_null_space,
+    from elastoplast.fem.assembly import assemble
+    from elastoplast.linalg.amg import (AMG, BorderedSystem, block_layout, bsr, constrain, near_null_space,
         one_blas_thread, pcg)
     from elastoplast.fem.discretize import nondimensionalize
 
@@ -159,16 +161,14 @@ def run_case(n: int, kind: str, dim: int, store: Path) -> dict:
                      kind=kind)
     rec["wall_s"] = time.perf_counter() - w0
     rec["cpu_s"] = time.process_time() - c0
-    rec["peak_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    rec["peak_gb"] = peak_memory() / 1e9
     return rec
 
 
 def spawn(n: int, kind: str, dim: int, store: Path) -> dict:
-    """One case in its own process (``--case``): its record, or the case and the error."""
-    from elastoplast.io.provenance import run_child
-
+    """One case in its own process (:func:`run_case`): its record, or the case and the error."""
     t0 = time.perf_counter()
-    rec = run_child(__file__, [n, kind, dim, str(store)], flag="--case")
+    rec = run_child(__file__, [n, kind, dim, str(store)])
     if "error" in rec:
         rec = {"n": n, "dim": dim, "kind": kind, **rec}
     rec["process_s"] = time.perf_counter() - t0
@@ -209,7 +209,7 @@ def summarise(records: list[dict]) -> dict:
                                       "memory": fit_exponent(x, [r["peak_gb"] - base for r in rows]),
                                       "from_elements": min(x), "to_elements": max(x)}
     big = max((r.get("n_elements", 0) for r in records if r.get("dim") == 3), default=0)
-    at = {r["kind"]: r for r in records if r.get("dim") == 3 and r["n_elements"] == big and "error" not in r}
+    at = {r["kind"]: r for r in records if r.get("dim") == 3 and "error" not in r and r["n_elements"] == big}
     elastic = [at[k] for k in ("elastic[amg]", "elastic[pardiso]") if k in at]
     if elastic and "newton[amg]" in at:
         best = min(elastic, key=lambda r: r["wall_s"])
@@ -331,8 +331,6 @@ def plot(results: dict, out: Path) -> None:
 def measure(mode: str, out: Path) -> dict:
     """Every case of the plan, each in its own process; the record (stamped, with its
     report) is written after every case."""
-    from elastoplast.io.provenance import write_record
-
     sizes = QUICK_SIZES if mode == "quick" else SIZES
     cases = plan(sizes, QUICK_CONIC_2D if mode == "quick" else CONIC_2D)
     results = {"tol": TOL, "records": []}
@@ -349,18 +347,10 @@ def measure(mode: str, out: Path) -> dict:
 
 
 def main(argv=None) -> int:
-    from elastoplast.io.provenance import run_record
-
-    ap = argparse.ArgumentParser(add_help=False)
-    ap.add_argument("--case", help=argparse.SUPPRESS)
-    args, rest = ap.parse_known_args(argv)
-    if args.case:
-        n, kind, dim, store = json.loads(args.case)
-        print(json.dumps(run_case(int(n), kind, int(dim), Path(store))))
-        return 0
-    return run_record(__doc__, "5k and 12k tetrahedra", HERE, TITLE, "scale", measure, report, plot, argv=rest)
+    return run_record(__doc__, "5k and 12k tetrahedra", HERE, TITLE, "scale", measure, report, plot, argv=argv,
+                      child=lambda spec: run_case(spec[0], spec[1], spec[2], Path(spec[3])))
 
 
 if __name__ == "__main__":
     os.environ.setdefault("PYTHONHASHSEED", "0")
-    raise SystemExit(main())
+    sys.exit(main())

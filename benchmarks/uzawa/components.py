@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-import elastoplast.solvers.uzawa as uz
+import elastoplast.solvers.contact as contact
 from common import family
 from elastoplast.solvers.uzawa import UzawaOptions, solve_uzawa
-from elastoplast.solvers.contact import _nnls_fallback, solve_contact_qp
+from elastoplast.solvers.contact import nnls_fallback, solve_contact_qp
 from elastoplast.linalg.direct import FACTORIZATIONS
 from elastoplast.solvers.uzawa import metric_matrix
 
@@ -68,17 +68,17 @@ def record_qps(disc) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
     and forms no S. The run therefore factors G with SuperLU (always installed; the
     QPs do not depend on the factorisation beyond round-off)."""
     seen = []
-    exact = uz.solve_contact_qp
+    exact = contact.solve_contact_qp
 
     def spy(S, g, lam0=None, max_iter=None):
         seen.append((S, g.copy(), None if lam0 is None else lam0.copy()))
         return exact(S, g, lam0, max_iter)
 
-    uz.solve_contact_qp = spy
+    contact.solve_contact_qp = spy  # as Uzawa's contact step calls it
     try:
         solve_uzawa(disc, UzawaOptions(tol=1e-6, factorization="splu"))
     finally:
-        uz.solve_contact_qp = exact
+        contact.solve_contact_qp = exact
     return seen
 
 
@@ -103,7 +103,7 @@ def qp_methods():
     return {
         "active-set (warm)": lambda S, g, lam0: solve_contact_qp(S, g, lam0),
         "active-set (cold)": lambda S, g, lam0: solve_contact_qp(S, g),
-        "nnls (scipy)": lambda S, g, lam0: _nnls_fallback(S, g),
+        "nnls (scipy)": lambda S, g, lam0: nnls_fallback(S, g),
         "osqp (warm, polished)": osqp_solver,
     }
 

@@ -22,10 +22,6 @@ The side studies ``components.py`` (factorisation of G, contact QP) and
 
 from __future__ import annotations
 
-import argparse
-import json
-import resource
-import subprocess
 import sys
 import tempfile
 import time
@@ -33,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -60,15 +57,6 @@ TOL = 1e-6
 # ----------------------------------------------------------------------------
 
 
-def peak_rss_mb() -> float:
-    """Peak resident memory of this process since its exec (VmHWM). ``ru_maxrss``
-    would also count the parent's memory at fork time, which Linux carries over."""
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return float(line.split()[1]) / 1024.0
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def child(spec: dict) -> dict:
     """Discretise, solve by one method, store the answer; returns the measured row."""
     import elastoplast as ep
@@ -85,15 +73,15 @@ def child(spec: dict) -> dict:
         "kkt": sol.kkt.as_dict(), "kkt_worst": sol.kkt.worst, "duality_gap": sol.duality_gap, "U": sol.U,
         "n_elements": disc.n_elements, "n_free": disc.n_free, "n_contact": disc.n_contact,
         "n_plastic": int(sol.plastic.sum()), "n_active": int(sol.active.sum()),
-        "peak_rss_mb": peak_rss_mb(),
+        "peak_rss_mb": peak_memory() / 2**20,
     }
 
 
-def run(spec: dict) -> dict:
-    proc = subprocess.run([sys.executable, __file__, "--child", json.dumps(spec)], capture_output=True, text=True)
-    if proc.returncode != 0:
-        return {**spec, "status": "crashed", "error": proc.stderr.strip().splitlines()[-1:]}
-    row = {**spec, **json.loads(proc.stdout.strip().splitlines()[-1])}
+def spawn(spec: dict) -> dict:
+    """:func:`child` in its own process: the measured row, or the spec marked crashed."""
+    row = {**spec, **run_child(__file__, spec)}
+    if "error" in row:
+        return {**row, "status": "crashed"}
     print(f"  {spec['problem']} {spec['divisions']} {spec['method']} {spec.get('material', {})} "
           f"{spec.get('options', {})}: {row['status']}, {row['iterations']} it, {row['time_s']:.2f} s, "
           f"KKT {row['kkt_worst']:.1e}, {row['peak_rss_mb']:.0f} MB", flush=True)
@@ -123,8 +111,8 @@ def pair(store: Path, problem: str, divisions: list[int], material: dict | None 
          uzawa_options: dict | None = None) -> tuple[dict, dict]:
     tag = f"{problem}_{'x'.join(map(str, divisions))}_{'_'.join(f'{k}{v:g}' for k, v in (material or {}).items())}"
     base = {"problem": problem, "divisions": divisions, "material": material or {}}
-    ref = run({**base, "method": "conic", "store": str(store / f"{tag}_conic.npz")})
-    uz = run({**base, "method": "uzawa", "options": {"tol": TOL, **(uzawa_options or {})},
+    ref = spawn({**base, "method": "conic", "store": str(store / f"{tag}_conic.npz")})
+    uz = spawn({**base, "method": "uzawa", "options": {"tol": TOL, **(uzawa_options or {})},
               "store": str(store / f"{tag}_uzawa.npz")})
     uz.update(errors(uz, ref))
     return ref, uz
@@ -152,7 +140,7 @@ def section_rho(store: Path, cases) -> list[dict]:
     for problem, div in cases:
         bound = rho_bound(family(problem, div).material)
         for share in RHO_SHARES:
-            row = run({"problem": problem, "divisions": div, "method": "uzawa",
+            row = spawn({"problem": problem, "divisions": div, "method": "uzawa",
                        "options": {"tol": TOL, "rho": share * bound, "max_iter": 20000},
                        "store": str(store / f"rho_{problem}_{share}.npz")})
             rows.append({**row, "rho_share": share})
@@ -268,35 +256,30 @@ def plots(results: dict, out_dir: Path) -> None:
     fig.savefig(out_dir / "hardening.png", dpi=110)
 
 
-def main() -> None:
-    ap = record_parser(__doc__)
-    ap.add_argument("--child", help=argparse.SUPPRESS)
-    args = ap.parse_args()
-    if args.child:
-        print(json.dumps(child(json.loads(args.child))))
-        return
-    out_dir = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        plots(rewrite_report(out_dir, TITLE, markdown), out_dir)
-        return
+def measure(mode: str, out: Path) -> dict:
+    """The three sections, every run in its own process."""
+    quick = mode == "quick"
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         store = Path(tmp)
-        results = {"meta": {"quick": args.quick, "tol": TOL}}
+        results = {"meta": {"quick": quick, "tol": TOL}}
         print("sizes", flush=True)
-        results["sizes"] = section_sizes(store, QUICK["sizes"] if args.quick else SIZES)
+        results["sizes"] = section_sizes(store, QUICK["sizes"] if quick else SIZES)
         print("rho", flush=True)
-        results["rho"] = section_rho(store, QUICK["rho"] if args.quick else RHO_CASES)
+        results["rho"] = section_rho(store, QUICK["rho"] if quick else RHO_CASES)
         print("hardening", flush=True)
-        results["hardening"] = section_hardening(store, QUICK["hardening"] if args.quick else H_CASES)
+        results["hardening"] = section_hardening(store, QUICK["hardening"] if quick else H_CASES)
     results["meta"]["total_s"] = time.perf_counter() - t0
     for section in ("sizes", "rho", "hardening"):
         for row in results[section]:
             row.pop("store", None)  # temporary files, gone
-    results = write_record(out_dir, results, TITLE, markdown)
-    plots(results, out_dir)
-    print(f"done in {results['meta']['total_s']:.0f} s -> {out_dir}")
+    return results
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "small cases", HERE, TITLE, "Uzawa benchmark", measure, markdown, plots, argv=argv,
+                      child=child)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

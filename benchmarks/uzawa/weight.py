@@ -12,11 +12,14 @@ iteration (exact counts). Usage::
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from common import family
-from elastoplast.io.provenance import record_dir, record_parser, rewrite_report, write_record
 from elastoplast.solvers.uzawa import UzawaOptions, solve_uzawa
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 TITLE = "Uzawa: the weight w of V in the metric |eps(v)|^2 + w V^2"
@@ -45,22 +48,22 @@ def markdown(data: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def main() -> None:
-    args = record_parser(__doc__, "two small cases").parse_args()
-    out_dir = record_dir(HERE, args.quick, args.out)
-    if args.report:
-        rewrite_report(out_dir, TITLE, markdown, study="weight")
-        return
+def measure(mode: str, out: Path) -> dict:
     rows = []
-    for problem, div in QUICK if args.quick else CASES:
+    for problem, div in QUICK if mode == "quick" else CASES:
         disc = family(problem, div)
         for w in WEIGHTS:
             sol = solve_uzawa(disc, UzawaOptions(tol=TOL, check_every=1, max_iter=3000, rigid_weight=w))
             rows.append({"problem": problem, "divisions": div, "n_elements": disc.n_elements, "weight": w,
                          "status": sol.status.value, "iterations": sol.iterations, "U": sol.U})
             print(json.dumps(rows[-1]), flush=True)
-    write_record(out_dir, {"quick": args.quick, "tol": TOL, "rows": rows}, TITLE, markdown, study="weight")
+    return {"quick": mode == "quick", "tol": TOL, "rows": rows}
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "two small cases", HERE, TITLE, "weight study", measure, markdown, argv=argv,
+                      study="weight")
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

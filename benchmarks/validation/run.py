@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from elastoplast.io.provenance import run_record
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import run_record  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -363,4 +364,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

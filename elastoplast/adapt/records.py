@@ -11,7 +11,7 @@ import numpy as np
 from elastoplast.certificate.solution import Solution
 from elastoplast.fem.discretize import Discretization
 from elastoplast.mesh.base import Mesh
-from elastoplast.problem.options import SolverOptions, option
+from elastoplast.options import SolverOptions, option
 
 
 @dataclass(frozen=True)

@@ -295,9 +295,7 @@ def element_indicators(disc: Discretization, bounds: Bounds) -> np.ndarray:
     """The local gap of each element plus the gap of the contact facets it owns
     (clipped at 0: the terms are >= 0 for an exactly admissible field, round-off
     aside): the indicator adaptive refinement marks on."""
-    from elastoplast.mesh.topology import facet_topology
-
-    topo = facet_topology(disc.mesh, disc.problem.boundary)
+    topo = disc.facet_topology
     eta = np.maximum(np.asarray(bounds.element_gap, dtype=float), 0.0)
     owners = topo.boundary_elements[topo.contact]
     np.add.at(eta, owners, np.maximum(np.asarray(bounds.facet_gap, dtype=float), 0.0))

@@ -62,7 +62,8 @@ from elastoplast.fem.discretize import (
 )
 from elastoplast.fem.material import identity_vector
 from elastoplast.mesh.base import Mesh
-from elastoplast.problem.options import SolverOptions, option
+from elastoplast.mesh.topology import local_edges, locate_rows, unique_rows
+from elastoplast.options import SolverOptions, option
 from elastoplast.solvers.backends import clarabel_settings, solve_clarabel
 
 SQRT_2_3 = np.sqrt(2.0 / 3.0)
@@ -71,7 +72,7 @@ SQRT_2_3 = np.sqrt(2.0 / 3.0)
 @dataclass(frozen=True)
 class LimitOptions(SolverOptions):
     """Settings of the kinematic program (declared and checked like every
-    solver's options, :mod:`elastoplast.problem.options`).
+    solver's options, :mod:`elastoplast.options`).
 
     ``order``: velocity degree, 1 or 2 (default: 2, which does not lock in 3D
     and, measured on the Prandtl punch, gives tighter bounds in 2D as well; see
@@ -140,15 +141,11 @@ class VelocitySpace:
         return v.reshape(-1, self.dim)
 
 
-def _local_pairs(n: int) -> list[tuple[int, int]]:
-    return [(i, j) for i in range(n) for j in range(i + 1, n)]
-
-
-def _edge_index(edges_sorted_keys: np.ndarray, n_vertices: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Position of the edges ``(a, b)`` in the sorted edge list (keys ``lo * n + hi``)."""
-    keys = np.minimum(a, b) * n_vertices + np.maximum(a, b)
-    idx = np.searchsorted(edges_sorted_keys, keys)
-    if np.any(idx >= edges_sorted_keys.size) or np.any(edges_sorted_keys[np.minimum(idx, edges_sorted_keys.size - 1)] != keys):
+def _facet_edges(edges: np.ndarray, facets: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Index in ``edges`` (unique sorted rows) of every edge of ``facets (m, d)``."""
+    pairs = np.sort(facets[:, local_edges(facets.shape[1] - 1)].reshape(-1, 2), axis=1)
+    idx = locate_rows(edges, pairs, n_vertices)
+    if np.any(idx < 0):
         raise InputError("mesh", "a boundary facet of a named group is not a facet of the mesh")
     return idx
 
@@ -158,11 +155,6 @@ def _columns(position: np.ndarray, dofs: np.ndarray, field_name: str) -> np.ndar
     if np.any(cols < 0):
         raise InputError(field_name, "a contact velocity is fixed by a clamped or symmetry group")
     return cols
-
-
-def _contact_facets(disc: Discretization) -> np.ndarray:
-    """The facets ``(n_cf, d)`` of the ``boundary.contact`` groups."""
-    return np.concatenate([disc.mesh.groups[name] for name in disc.problem.boundary.contact], axis=0)
 
 
 def _strain_at_points(n_nodes: int, nodes: np.ndarray, grads: np.ndarray) -> sp.csr_matrix:
@@ -195,12 +187,8 @@ def velocity_space(disc: Discretization, order: int) -> VelocitySpace:
     if order != 2:
         raise InputError("limit.order", f"must be 1 or 2, got {order!r}")
     nv, cells = mesh.n_nodes, mesh.cells
-    pairs = _local_pairs(d + 1)
-    a = np.stack([cells[:, i] for i, _ in pairs], axis=1)
-    b = np.stack([cells[:, j] for _, j in pairs], axis=1)
-    keys = np.minimum(a, b) * nv + np.maximum(a, b)
-    uniq, local_edge = np.unique(keys.ravel(), return_inverse=True)
-    edges = np.stack([uniq // nv, uniq % nv], axis=1)
+    pairs = local_edges(d)
+    edges, local_edge, _ = unique_rows(np.sort(cells[:, pairs], axis=2).reshape(-1, 2), nv)
     p2_cells = np.concatenate([cells, nv + local_edge.reshape(cells.shape[0], len(pairs))], axis=1)
 
     # gradients of the P2 basis at vertex a: vertex i (4 delta_ia - 1) grad l_i,
@@ -224,24 +212,19 @@ def velocity_space(disc: Discretization, order: int) -> VelocitySpace:
     bnd = disc.problem.boundary
     fixed_groups = [(name, slice(None)) for name in bnd.clamped]
     fixed_groups += [(name, comp) for comp, names in bnd.fix_component.items() for name in names]
-    for name, comp in fixed_groups:
-        facets = mesh.groups[name]
-        for i, j in _local_pairs(d):
-            fixed[nv + _edge_index(uniq, nv, facets[:, i], facets[:, j]), comp] = True
+    for name, comp in fixed_groups:  # all the group's facets, as disc.fixed (FacetTopology.fixed skips interior ones)
+        fixed[nv + _facet_edges(edges, mesh.groups[name], nv), comp] = True
     free = np.flatnonzero(~fixed.ravel())
     position = -np.ones(n_nodes * d, dtype=np.int64)
     position[free] = np.arange(free.size)
 
     # Bernstein coefficients of v_d on the contact facets
-    cf = _contact_facets(disc)
+    cf = disc.facet_topology.contact_facets
     verts = np.unique(cf)
     rows = [np.arange(verts.size)]
     cols = [_columns(position, verts * d + d - 1, "boundary.contact")]
     vals = [np.ones(verts.size)]
-    fe = [(cf[:, i], cf[:, j]) for i, j in _local_pairs(d)]
-    ea = np.concatenate([x for x, _ in fe])
-    eb = np.concatenate([y for _, y in fe])
-    cedges = np.unique(_edge_index(uniq, nv, ea, eb))
+    cedges = np.unique(_facet_edges(edges, cf, nv))
     ends = edges[cedges]
     r = verts.size + np.arange(cedges.size)
     for nodes, c in ((nv + cedges, 2.0), (ends[:, 0], -0.5), (ends[:, 1], -0.5)):

@@ -79,8 +79,8 @@ from elastoplast.fem.discretize import (
     nondimensionalize,
 )
 from elastoplast.fem.material import von_mises
-from elastoplast.mesh.topology import FacetTopology, facet_measure, facet_topology
-from elastoplast.problem.options import TIGHTEST_TOL, SolverOptions, option
+from elastoplast.mesh.topology import FacetTopology, facet_measure
+from elastoplast.options import TIGHTEST_TOL, SolverOptions, option
 from elastoplast.solvers.backends import (
     ConicAnswer,
     clarabel_settings,
@@ -121,7 +121,7 @@ LOWER_BOUND_SOLVERS = ("clarabel", "scs")
 @dataclass(frozen=True)
 class LowerBoundOptions(SolverOptions):
     """Settings of the lower-bound programs (declared and checked like every
-    solver's options, :mod:`elastoplast.problem.options`).
+    solver's options, :mod:`elastoplast.options`).
 
     ``tol``: the admissibility certificate's tolerance (:func:`certify_static`);
     ``ip_tol``, ``max_iter``, ``verbose``, ``time_limit``, ``linear_solver``:
@@ -345,7 +345,7 @@ def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, lim
 
 def lower_bound_setup(disc: Discretization, options: LowerBoundOptions, force: float | None = None, limit: bool = False) -> _Setup:
     check_lower_bound_size(disc, options, limit)
-    topo = facet_topology(disc.mesh, disc.problem.boundary)
+    topo = disc.facet_topology
     psi = psi_weights(disc, topo, options.psi_subdivisions)
     nd, units = nondimensionalize(disc if force is None else disc.with_force(force))
     _, grads = element_geometry(disc.mesh)
@@ -490,7 +490,7 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     m = disc.material
-    area = facet_measure(disc.mesh.points[facet_topology(disc.mesh, disc.problem.boundary).contact_facets]).sum()
+    area = facet_measure(disc.mesh.points[disc.facet_topology.contact_facets]).sum()
     s = lower_bound_setup(disc, options, force=m.yield_stress * area, limit=True)  # stress unit = sigma_y
     prog = lower_bound_program(s.nd, s.topo, s.grads, np.zeros_like(s.psi.q), limit=True)
     timings["setup"] = time.perf_counter() - t0

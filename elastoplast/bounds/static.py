@@ -16,12 +16,7 @@ import numpy as np
 from elastoplast.errors import InputError
 from elastoplast.fem.discretize import STRAIN_ROWS, Discretization, element_geometry
 from elastoplast.fem.material import n_components, von_mises
-from elastoplast.mesh.topology import (
-    FacetTopology,
-    facet_measure,
-    facet_topology,
-    outward_normals,
-)
+from elastoplast.mesh.topology import FacetTopology, facet_measure, outward_facet_normals
 
 #: every residual of :func:`certify_static` must be at most this (relative to its stated scale)
 CERTIFY_TOL = 1e-12
@@ -127,7 +122,7 @@ def local_terms(disc: Discretization, field: StaticField, psi: PsiWeights | None
                 topo: FacetTopology | None = None) -> LocalTerms:
     """The terms of :class:`LocalTerms`, integrated exactly with the P1 mass matrices."""
     d, m = disc.dim, disc.material
-    topo = facet_topology(disc.mesh, disc.problem.boundary) if topo is None else topo
+    topo = disc.facet_topology if topo is None else topo
     psi = psi_weights(disc, topo) if psi is None else psi
     M = mass_matrix(d)
     A = m.compliance(d)
@@ -220,7 +215,7 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
     """Check that ``field`` is statically and plastically admissible (docs/bounds.md).
 
     Uses only the mesh, the facet groups, the material and the field: facet normals
-    and measures come from edge vectors (:func:`outward_normals`), not from the
+    and measures come from edge vectors (:func:`outward_facet_normals`), not from the
     program's gradient-based rows, and whatever produced the field plays no part.
 
     Why ``tol = 1e-12`` is safe: an exactly admissible field, stored in double
@@ -233,7 +228,7 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
     raw output (residuals at its tolerance, 1e-10..1e-6) fails.
     """
     mesh, m = disc.mesh, disc.material
-    topo = facet_topology(mesh, disc.problem.boundary)
+    topo = disc.facet_topology
     tau = np.asarray(field.tau, dtype=float)
     eta = np.asarray(field.eta, dtype=float)
     lam = np.asarray(field.lam, dtype=float)
@@ -251,7 +246,7 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
     s = max(_vmax(np.linalg.norm(tau, axis=-1)), _vmax(lam), F / contact_measure.sum())
 
     def traction(elements, vertices, nodes):
-        nrm, _ = outward_normals(mesh, elements, nodes)
+        nrm = outward_facet_normals(mesh.points, mesh.cells, elements, nodes)
         t_vertex = tau[elements[:, None], vertices]  # (m, d, k)
         return np.einsum("mdk,mak->mad", traction_operator(nrm), t_vertex)
 

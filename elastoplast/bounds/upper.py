@@ -77,8 +77,10 @@ def hencky_energy_density(material: Material, eps: np.ndarray) -> np.ndarray:
 
 
 def contact_facets(disc: Discretization) -> np.ndarray:
-    """The facets ``(n_cf, d)`` (node indices) of the ``boundary.contact`` groups: Γ0."""
-    return np.concatenate([disc.mesh.groups[name] for name in disc.problem.boundary.contact], axis=0)
+    """The facets ``(n_cf, d)`` (node indices, sorted per facet) of the ``boundary.contact``
+    groups: Γ0, as :attr:`~elastoplast.mesh.topology.FacetTopology.contact_facets` of
+    ``disc.facet_topology``."""
+    return disc.facet_topology.contact_facets
 
 
 def enclosing_radius(X: np.ndarray) -> np.ndarray:

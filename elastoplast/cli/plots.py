@@ -14,6 +14,7 @@ from elastoplast.errors import InputError
 from elastoplast.fem.discretize import Discretization
 from elastoplast.io.store import atomic_write
 from elastoplast.mesh.base import Mesh
+from elastoplast.mesh.topology import local_edges, pair_keys, unique_rows
 
 
 def plot_gap_curves(ax, curves: dict[str, list[Step] | tuple[Step, ...]], last: int | None = None) -> None:
@@ -46,15 +47,6 @@ def plot_gaps(path, adaptive: AdaptResult, uniform_run: AdaptResult | None, titl
     fig.savefig(path, dpi=120)
 
 
-def pair_key(i: np.ndarray, j: np.ndarray, n: int) -> np.ndarray:
-    """One int64 per unordered pair of indices below ``n``."""
-    lo, hi = np.minimum(i, j).astype(np.int64), np.maximum(i, j).astype(np.int64)
-    return lo * np.int64(n) + hi
-
-
-TET_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
-
-
 def slice_polygons(mesh: Mesh, axis: int, value: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The cut of a tetrahedral mesh by the plane ``x[axis] = value``.
 
@@ -82,13 +74,13 @@ def slice_polygons(mesh: Mesh, axis: int, value: float) -> tuple[np.ndarray, np.
     proper = (on.sum(axis=1) == 3) | ((exact < 0) & ~on).any(axis=1) & ((exact > 0) & ~on).any(axis=1)
     cut = np.flatnonzero((dist.min(axis=1) < 0) & (dist.max(axis=1) > 0) & proper)
     X, dist, cells = X[cut], dist[cut], mesh.cells[cut]
-    a, b = TET_EDGES[:, 0], TET_EDGES[:, 1]
+    a, b = local_edges(3).T
     da, db = dist[:, a], dist[:, b]
     cross = da * db < 0
     t = np.where(cross, da / np.where(cross, da - db, 1.0), 0.0)
     P = X[:, a] + t[..., None] * (X[:, b] - X[:, a])
     Q = P[:, :, [i for i in range(3) if i != axis]]
-    keys = pair_key(cells[:, a], cells[:, b], mesh.n_nodes)
+    keys = pair_keys(cells[:, a], cells[:, b], mesh.n_nodes)
     count = cross.sum(axis=1)
     centre = (Q * cross[..., None]).sum(axis=1) / count[:, None]
     angle = np.arctan2(Q[..., 1] - centre[:, None, 1], Q[..., 0] - centre[:, None, 0])
@@ -105,12 +97,11 @@ def outline_segments(polygons: np.ndarray, keys: np.ndarray, inside: np.ndarray)
     the edges (pairs of vertex keys) met twice in all polygons and once among
     those inside."""
     k = polygons.shape[1]
-    n = int(keys.max(initial=0)) + 1
-    pair = pair_key(keys, np.roll(keys, -1, axis=1), n).ravel()
+    pair = np.sort(np.stack([keys, np.roll(keys, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
     seg = np.stack([polygons, np.roll(polygons, -1, axis=1)], axis=2).reshape(-1, 2, 2)
     flag = np.repeat(inside, k)
-    ok = (keys != np.roll(keys, -1, axis=1)).ravel()
-    _, inv, count = np.unique(pair[ok], return_inverse=True, return_counts=True)
+    ok = pair[:, 0] != pair[:, 1]
+    _, inv, count = unique_rows(pair[ok], int(keys.max(initial=0)) + 1)
     count_in = np.bincount(inv, weights=flag[ok], minlength=count.size)
     sel = (count[inv] == 2) & (count_in[inv] == 1) & flag[ok]
     return seg[ok][sel]

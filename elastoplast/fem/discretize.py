@@ -8,7 +8,7 @@ ones not fixed by a Dirichlet condition and every operator acts on those.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from math import factorial
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -16,25 +16,20 @@ from scipy.sparse.csgraph import connected_components
 
 from elastoplast.limits import check_mesh_size
 from elastoplast.errors import InputError, expect
+from elastoplast.fem.assembly import (
+    STRAIN_ROWS,
+    Layout,
+    ScalarView,
+    assemble,
+    element_geometry,
+    element_layout,
+    rigid_motions,
+    scalar_view,
+)
 from elastoplast.fem.material import Material, n_components
 from elastoplast.mesh.base import Mesh
-from elastoplast.mesh.topology import boundary_facets
+from elastoplast.mesh.topology import FacetTopology, boundary_facets, facet_topology
 from elastoplast.problem.definition import Problem
-
-INV_SQRT2 = 1.0 / np.sqrt(2.0)
-
-# Mandel rows of eps = sym(grad u) as (component, derivative, weight) triples.
-STRAIN_ROWS = {
-    2: [[(0, 0, 1.0)], [(1, 1, 1.0)], [], [(0, 1, INV_SQRT2), (1, 0, INV_SQRT2)]],
-    3: [
-        [(0, 0, 1.0)],
-        [(1, 1, 1.0)],
-        [(2, 2, 1.0)],
-        [(1, 2, INV_SQRT2), (2, 1, INV_SQRT2)],
-        [(0, 2, INV_SQRT2), (2, 0, INV_SQRT2)],
-        [(0, 1, INV_SQRT2), (1, 0, INV_SQRT2)],
-    ],
-}
 
 
 @dataclass(frozen=True)
@@ -42,7 +37,8 @@ class Discretization:
     """The data of the discrete problem (2.1) for one :class:`Problem`.
 
     ``B`` maps free dofs to element strains stacked element by element
-    (``(n_el * k, n_free)``), ``volumes`` are ``|T|``, ``N`` picks the vertical
+    (``(n_el * k, n_free)``), ``volumes`` are ``|T|`` and ``grads`` the shape
+    function gradients ``(n_el, d+1, d)`` B is made of, ``N`` picks the vertical
     dof of each contact node (``(n_contact, n_free)``), ``psi`` is the obstacle
     at the contact nodes and ``contact_area`` their lumped share of the flat
     boundary ``x_d = 0`` (used only to turn forces into pressures).
@@ -50,6 +46,7 @@ class Discretization:
 
     problem: Problem
     volumes: np.ndarray
+    grads: np.ndarray
     B: sp.csr_matrix
     free: np.ndarray
     fixed: np.ndarray
@@ -90,6 +87,11 @@ class Discretization:
     def force(self) -> float:
         return self.problem.force
 
+    @cached_property
+    def facet_topology(self) -> FacetTopology:
+        """The mesh's facets classified by the problem's facet groups (:func:`facet_topology`), built once."""
+        return facet_topology(self.mesh, self.problem.boundary)
+
     @property
     def length_scale(self) -> float:
         """Largest extent of the body."""
@@ -104,17 +106,23 @@ class Discretization:
         """``r = sum_T |T| B_T^T sigma_T`` on the free dofs."""
         return self.B.T @ (sigma * self.volumes[:, None]).ravel()
 
+    @cached_property
+    def layout(self) -> Layout:
+        """The block pattern of the stiffness-type matrices over every dof
+        (:func:`~elastoplast.fem.assembly.element_layout`), built once."""
+        return element_layout(self.mesh, self.grads, self.volumes)
+
+    @cached_property
+    def free_view(self) -> ScalarView:
+        """Their CSR pattern on the free dofs (:func:`~elastoplast.fem.assembly.scalar_view`), built once."""
+        return scalar_view(self.layout, self.free)
+
     def weighted_gram(self, M: np.ndarray) -> sp.csr_matrix:
         """``sum_T |T| B_T^T M_T B_T`` on the free dofs, for one ``M (k, k)`` shared by
         every element (Uzawa's metric with M = I, the elastic stiffness with M = C)
         or one per element, ``M (n_el, k, k)`` (the tangent stiffness)."""
-        if M.ndim == 2:
-            D = sp.kron(sp.diags(self.volumes), sp.csr_matrix(M), format="csr")
-        else:
-            n = self.n_elements
-            D = sp.bsr_matrix((M * self.volumes[:, None, None], np.arange(n), np.arange(n + 1)),
-                              shape=(n * self.k, n * self.k)).tocsr()
-        return (self.B.T @ D @ self.B).tocsr()
+        view = self.free_view
+        return view.csr(view.from_blocks(assemble(self.layout, M)))
 
     def full_displacement(self, u_free: np.ndarray) -> np.ndarray:
         """Nodal displacements ``(n_nodes, d)`` with zeros at fixed dofs."""
@@ -140,44 +148,10 @@ class Discretization:
             value = float("nan")
         if not (np.isfinite(value) and value > 0):
             raise InputError("load.force", f"must be a finite number > 0, got {force!r}")
-        return replace(self, problem=replace(self.problem, force=value))
-
-
-def element_geometry(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
-    """``(volumes, gradients)``; refuses degenerate and inverted simplices."""
-    d = mesh.dim
-    X = mesh.points[mesh.cells]
-    J = element_jacobians(mesh.points, mesh.cells)
-    det = np.linalg.det(J)
-    edges = np.concatenate([X[:, i] - X[:, j] for i in range(d + 1) for j in range(i)], axis=0)
-    h = np.linalg.norm(edges.reshape(-1, mesh.n_elements, d), axis=2).max(axis=0)
-    degenerate = np.abs(det) <= 1e-10 * h**d
-    if np.any(degenerate):
-        bad = np.flatnonzero(degenerate)
-        raise InputError(
-            "mesh", f"{bad.size} degenerate element(s) (zero volume), first: element {bad[0]} with nodes {mesh.cells[bad[0]].tolist()}"
-        )
-    sign = np.sign(det)
-    majority = 1.0 if np.sum(sign > 0) >= np.sum(sign < 0) else -1.0
-    if np.any(sign != majority):
-        bad = np.flatnonzero(sign != majority)
-        raise InputError(
-            "mesh", f"{bad.size} inverted element(s) (orientation opposite to the rest), first: element {bad[0]}"
-        )
-    return np.abs(det) / factorial(d), shape_gradients(J)
-
-
-def element_jacobians(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """``J[e] = [x_1 - x_0, ..., x_d - x_0]`` (columns) of each simplex."""
-    X = points[cells]
-    return np.swapaxes(X[:, 1:] - X[:, :1], 1, 2)
-
-
-def shape_gradients(J: np.ndarray) -> np.ndarray:
-    """Gradients ``(n_el, d+1, d)`` of the P1 shape functions from the Jacobians:
-    the rows of ``J^{-1}`` for phi_1..phi_d and minus their sum for phi_0."""
-    Jinv = np.linalg.inv(J)
-    return np.concatenate([-Jinv.sum(axis=1, keepdims=True), Jinv], axis=1)
+        out = replace(self, problem=replace(self.problem, force=value))
+        if "facet_topology" in self.__dict__:  # same mesh and groups
+            out.__dict__["facet_topology"] = self.facet_topology
+        return out
 
 
 def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, chunk: int = 1 << 17) -> sp.csr_matrix:
@@ -217,22 +191,6 @@ def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, ch
     B = sp.csr_matrix((np.concatenate(data), np.concatenate(indices), indptr), shape=(n * k, n_free))
     B.sort_indices()
     return B
-
-
-def rigid_motions(points: np.ndarray) -> np.ndarray:
-    """Basis ``(n_nodes * d, r)`` of infinitesimal rigid motions at the nodes."""
-    n, d = points.shape
-    x = points - points.mean(axis=0)
-    modes = []
-    for a in range(d):
-        t = np.zeros((n, d))
-        t[:, a] = 1.0
-        modes.append(t)
-    for a, b in ([(0, 1)] if d == 2 else [(0, 1), (1, 2), (0, 2)]):
-        r = np.zeros((n, d))
-        r[:, a], r[:, b] = -x[:, b], x[:, a]
-        modes.append(r)
-    return np.stack([m.ravel() for m in modes], axis=1)
 
 
 _MOTION_NAMES = {2: ["translation x", "translation y", "rotation in xy"],
@@ -370,6 +328,7 @@ def discretize(problem: Problem) -> Discretization:
     disc = Discretization(
         problem=problem,
         volumes=volumes,
+        grads=grads,
         B=B,
         free=free,
         fixed=fixed,
@@ -463,6 +422,7 @@ def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
             disc,
             problem=problem,
             volumes=disc.volumes / L**d,
+            grads=disc.grads * L,
             B=(disc.B * L).tocsr(),
             psi=np.minimum(disc.psi / units.displacement, PSI_CAP),
             contact_area=disc.contact_area / L ** (d - 1),

@@ -54,7 +54,7 @@ def stamp(command: str | None = None) -> dict[str, Any]:
     ``command`` defaults to the running process's command line. The commit and
     its ``dirty`` flag are those taken by :func:`freeze_source`, else those of now.
     """
-    from elastoplast import __version__
+    from elastoplast.version import __version__
 
     commit, dirty = _SOURCE_AT_START if _SOURCE_AT_START is not None else source_commit()
     try:

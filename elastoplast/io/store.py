@@ -39,7 +39,7 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-from elastoplast import __version__
+from elastoplast.version import __version__
 from elastoplast.certificate.kkt import KKTResiduals
 from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.errors import InputError

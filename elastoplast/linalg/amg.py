@@ -8,10 +8,11 @@ metric need for that path:
 
 * :class:`BlockLayout`: the stiffness-type matrices ``sum_T |T| B_T^T D_T B_T``
   stored as BSR with one ``d x d`` block per pair of neighbouring nodes, over
-  every dof (fixed ones included, as identity-like rows), assembled element by
-  element in chunks (:func:`assemble`) without a global copy of per-element
-  matrices: memory is the matrix, the shape gradients ``(n_el, d+1, d)`` and one
-  ``int32`` slot per element block;
+  every dof (fixed ones included, as identity-like rows): the discretisation's
+  :class:`~elastoplast.fem.assembly.Layout`, assembled element by element in
+  chunks by :func:`~elastoplast.fem.assembly.assemble` without a global copy of
+  per-element matrices: memory is the matrix, the shape gradients
+  ``(n_el, d+1, d)`` and one ``int32`` slot per element block;
 * :func:`constrain`: Dirichlet rows and columns (the clamped dofs and the
   active contact dofs of a Newton face) replaced by their diagonal;
 * :class:`AMG`: pyamg's smoothed aggregation with the rigid-body motions of the
@@ -27,22 +28,13 @@ from __future__ import annotations
 
 import contextlib
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import scipy.sparse as sp
 
-from elastoplast.fem.discretize import (
-    STRAIN_ROWS,
-    Discretization,
-    element_jacobians,
-    rigid_motions,
-    shape_gradients,
-)
-
-#: elements per chunk of the assembly: bounds its temporaries (a chunk of 3D
-#: element matrices is 2^16 * 144 doubles = 75 MB)
-CHUNK = 1 << 16
+from elastoplast.fem.assembly import Layout, rigid_motions
+from elastoplast.fem.discretize import Discretization
 
 
 def one_blas_thread():
@@ -57,43 +49,15 @@ def one_blas_thread():
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def index_dtype(n: int) -> type:
-    """The smallest integer type that numbers ``n`` things."""
-    return np.int32 if n < np.iinfo(np.int32).max else np.int64
-
-
 @dataclass(frozen=True)
-class BlockLayout:
-    """Block sparsity of the stiffness over the nodes and where elements add into it.
+class BlockLayout(Layout):
+    """The :class:`~elastoplast.fem.assembly.Layout` of a discretisation with what
+    the iterative path adds: ``free`` marks the free dofs (``node * d +
+    component``) and ``points`` are the nodes in the layout's length unit (for
+    the near-null space)."""
 
-    Block row ``i`` holds the blocks ``indices[indptr[i]:indptr[i+1]]`` (the
-    nodes sharing an element with node i, sorted); ``brow`` is each block's
-    row, ``diag`` each node's diagonal block, ``slots (n_el, (d+1)^2)`` the block
-    of the local pair ``(a, b)`` of each element. ``grads (n_el, d+1, d)`` are
-    the shape-function gradients and ``volumes`` the element volumes, in the
-    units of the discretisation the layout was built for; ``free`` marks the
-    free dofs (``node * d + component``).
-    """
-
-    dim: int
-    n_nodes: int
-    indptr: np.ndarray
-    indices: np.ndarray
-    brow: np.ndarray
-    diag: np.ndarray
-    slots: np.ndarray
-    grads: np.ndarray
-    volumes: np.ndarray
     free: np.ndarray
     points: np.ndarray = field(repr=False)
-
-    @property
-    def n_blocks(self) -> int:
-        return self.indices.size
-
-    @property
-    def n_dofs(self) -> int:
-        return self.n_nodes * self.dim
 
     def embed(self, x_free: np.ndarray, free_index: np.ndarray) -> np.ndarray:
         """A vector on the free dofs as a vector on every dof (zeros at fixed ones)."""
@@ -103,76 +67,17 @@ class BlockLayout:
 
 
 def block_layout(disc: Discretization, length: float = 1.0) -> BlockLayout:
-    """The block pattern of ``disc``'s mesh; gradients in units of ``length``.
+    """The block pattern of ``disc``'s mesh (``disc.layout``); nodes in units of ``length``.
 
     ``length`` is the unit of a nondimensionalised discretisation
-    (:class:`~elastoplast.fem.discretize.Units`): ``disc.B`` of
-    ``nondimensionalize(disc)`` is the original one times ``length``, and so are
-    the gradients here.
+    (:class:`~elastoplast.fem.discretize.Units`): ``disc.B`` and the gradients
+    of ``nondimensionalize(disc)`` are the original ones times ``length``.
     """
-    mesh = disc.mesh
-    n, d = mesh.n_nodes, mesh.dim
-    m = d + 1
-    cells = mesh.cells
-    grads = np.empty((mesh.n_elements, m, d))
-    for s in range(0, mesh.n_elements, CHUNK):
-        grads[s:s + CHUNK] = shape_gradients(element_jacobians(mesh.points / length, cells[s:s + CHUNK]))
-    keys = (cells[:, :, None].astype(np.int64) * n + cells[:, None, :]).reshape(-1)
-    uniq, inverse = np.unique(keys, return_inverse=True)
-    del keys
-    it = index_dtype(max(uniq.size, n))
-    brow = (uniq // n).astype(it)
-    indices = (uniq % n).astype(it)
-    del uniq
-    indptr = np.zeros(n + 1, dtype=it)
-    np.cumsum(np.bincount(brow, minlength=n), out=indptr[1:])
-    diag = np.flatnonzero(brow == indices).astype(it)  # every node is its own neighbour: one per row
-    free = np.zeros(n * d, dtype=bool)
+    lay = disc.layout
+    free = np.zeros(lay.n_dofs, dtype=bool)
     free[disc.free] = True
-    return BlockLayout(dim=d, n_nodes=n, indptr=indptr, indices=indices, brow=brow, diag=diag,
-                       slots=inverse.reshape(mesh.n_elements, m * m).astype(it), grads=grads,
-                       volumes=np.asarray(disc.volumes, dtype=float), free=free, points=mesh.points / length)
-
-
-def strain_matrices(grads: np.ndarray) -> np.ndarray:
-    """Element strain matrices ``B_T (n, k, (d+1) d)`` (Mandel rows, local dofs
-    ``a * d + component``) from the shape gradients ``(n, d+1, d)``."""
-    n, m, d = grads.shape
-    rows = STRAIN_ROWS[d]
-    B = np.zeros((n, len(rows), m, d))
-    for c, terms in enumerate(rows):
-        for comp, der, w in terms:
-            B[:, c, :, comp] += w * grads[:, :, der]
-    return B.reshape(n, len(rows), m * d)
-
-
-def assemble(lay: BlockLayout, D: np.ndarray, elements: np.ndarray | None = None,
-             out: np.ndarray | None = None, subtract: np.ndarray | None = None) -> np.ndarray:
-    """Block values ``(n_blocks, d, d)`` of ``sum_T |T| B_T^T (D_T - subtract) B_T``.
-
-    ``D`` is one ``(k, k)`` matrix for every element or one per element of
-    ``elements`` (``(len(elements), k, k)``; all elements when None); the sum
-    runs over ``elements`` and is added to ``out`` when given (a correction
-    of an assembled matrix, e.g. the plastic elements' tangent minus C).
-    """
-    d, m = lay.dim, lay.dim + 1
-    if elements is None:
-        elements = np.arange(lay.volumes.size)
-    data = np.zeros((lay.n_blocks, d, d)) if out is None else out
-    shared = D.ndim == 2
-    for s in range(0, elements.size, CHUNK):
-        e = elements[s:s + CHUNK]
-        Bl = strain_matrices(lay.grads[e])
-        De = D if shared else D[s:s + CHUNK]
-        if subtract is not None:
-            De = De - subtract
-        DB = np.matmul(De, Bl) * lay.volumes[e, None, None]
-        Ke = np.matmul(np.swapaxes(Bl, 1, 2), DB).reshape(e.size, m, d, m, d)
-        slots = lay.slots[e].ravel()
-        for i in range(d):
-            for j in range(d):
-                data[:, i, j] += np.bincount(slots, weights=Ke[:, :, i, :, j].ravel(), minlength=lay.n_blocks)
-    return data
+    return BlockLayout(**{f.name: getattr(lay, f.name) for f in fields(Layout)}, free=free,
+                       points=disc.mesh.points / length)
 
 
 def constrain(lay: BlockLayout, data: np.ndarray, fixed: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 
 from elastoplast.limits import (as_path, check_input_file, check_memory, check_mesh_size, element_name, format_bytes,
     mesh_read_bytes, structured_counts)
-from elastoplast.mesh.topology import boundary_facets, locate_rows, unique_rows
+from elastoplast.mesh.topology import boundary_facets, local_edges, locate_rows, unique_rows
 from elastoplast.mesh.checks import check_conforming, check_facet_groups, merge_coincident_nodes
 from elastoplast.errors import InputError
 
@@ -435,9 +435,7 @@ def _check_lines_are_edges(mesh: Mesh, lines: np.ndarray, path: Path) -> None:
     if np.any(lines < 0):
         raise InputError("mesh.file", f"{path}: {int(np.any(lines < 0, axis=1).sum())} line cell(s) use nodes no "
                                       "tetrahedron uses (line elements are not solved)")
-    c = mesh.cells
-    edges, _, _ = unique_rows(np.sort(np.concatenate([c[:, [a, b]] for a in range(4) for b in range(a)]), axis=1),
-                              mesh.n_nodes)
+    edges, _, _ = unique_rows(np.sort(mesh.cells[:, local_edges(3)].reshape(-1, 2), axis=1), mesh.n_nodes)
     missing = locate_rows(edges, np.sort(lines, axis=1), mesh.n_nodes) < 0
     if np.any(missing):
         raise InputError("mesh.file", f"{path}: {int(missing.sum())} line cell(s) are not edges of any tetrahedron "

@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from elastoplast.errors import InputError
-from elastoplast.mesh.topology import element_facets, locate_rows, outward_facet_normals, unique_rows
+from elastoplast.mesh.topology import element_facets, local_edges, locate_rows, outward_facet_normals, unique_rows
 
 # ----------------------------------------------------------------------------
 # mesh topology (files): one connected, conforming body
@@ -86,7 +86,7 @@ def check_conforming(points: np.ndarray, cells: np.ndarray, field: str) -> tuple
     if np.any(counts > 1):
         raise InputError(field, f"{int(np.sum(counts - 1))} element(s) repeat another element's nodes "
                                 "(each element must appear once)")
-    facets, owner, local = element_facets(cells)
+    facets, owner, _ = element_facets(cells)
     uniq, inverse, counts = unique_rows(facets, n_nodes)
     if np.any(counts > 2):
         bad = np.flatnonzero(counts > 2)
@@ -94,10 +94,10 @@ def check_conforming(points: np.ndarray, cells: np.ndarray, field: str) -> tuple
                                 f"non-manifold elements), e.g. nodes {uniq[bad[0]].tolist()}")
     _check_connected(cells, owner, inverse, counts, n_nodes, field)
     boundary = counts[inverse] == 1
-    bfacets, bowner, blocal = facets[boundary], owner[boundary], local[boundary]
-    normals = outward_facet_normals(points, cells, bowner, blocal, bfacets)
+    bfacets, bowner = facets[boundary], owner[boundary]
+    normals = outward_facet_normals(points, cells, bowner, bfacets)
     _check_boundary_ridges(points, bfacets, normals, n_nodes, field)
-    _check_hanging_nodes(points, bfacets, field)
+    check_hanging_nodes(points, bfacets, field)
     return uniq, counts
 
 
@@ -130,9 +130,7 @@ def _check_connected(cells, owner, inverse, counts, n_nodes, field) -> None:
 def _check_boundary_ridges(points, bfacets, normals, n_nodes, field) -> None:
     """(4) each boundary ridge on exactly two boundary facets, (5) without a fold."""
     d = points.shape[1]
-    k = bfacets.shape[1]  # d nodes per facet; ridges are its (d-1)-subsets
-    ridges = np.sort(np.concatenate([np.delete(bfacets, i, axis=1) for i in range(k)], axis=0), axis=1)
-    which = np.tile(np.arange(len(bfacets)), k)
+    ridges, which, _ = element_facets(bfacets)  # a facet's (d-1)-subsets
     uniq, inverse, counts = unique_rows(ridges, n_nodes)
     ridge_name = "boundary node(s)" if d == 2 else "boundary edge(s)"
     if np.any(counts != 2):
@@ -154,7 +152,7 @@ def _check_boundary_ridges(points, bfacets, normals, n_nodes, field) -> None:
                                 "interface)")
 
 
-def _check_hanging_nodes(points, bfacets, field, n_candidates: int = 8, tol: float = 1e-8) -> None:
+def check_hanging_nodes(points, bfacets, field, n_candidates: int = 8, tol: float = 1e-8) -> None:
     """(6) no boundary node lies on a boundary facet it is not a vertex of.
 
     For each boundary facet the ``d + n_candidates`` boundary nodes nearest its
@@ -181,7 +179,8 @@ def _check_hanging_nodes(points, bfacets, field, n_candidates: int = 8, tol: flo
     P = X[f]
     e = [P[:, i] - P[:, 0] for i in range(1, d)]
     w = q - P[:, 0]
-    h = np.max([np.linalg.norm(P[:, a] - P[:, b], axis=1) for a in range(d) for b in range(a)], axis=0)
+    le = local_edges(d - 1)
+    h = np.linalg.norm(P[:, le[:, 0]] - P[:, le[:, 1]], axis=2).max(axis=1)
     if d == 2:
         t = np.einsum("ij,ij->i", w, e[0]) / np.einsum("ij,ij->i", e[0], e[0])
         off = np.linalg.norm(w - t[:, None] * e[0], axis=1)

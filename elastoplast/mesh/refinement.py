@@ -78,12 +78,24 @@ import numpy as np
 from elastoplast.limits import check_mesh_size
 from elastoplast.errors import InputError, expect
 from elastoplast.mesh.base import Mesh
-from elastoplast.problem.options import Spec, check_value
+from elastoplast.mesh.topology import (
+    facet_measure,
+    facet_normals,
+    keys_fit,
+    local_edges,
+    locate_keys,
+    pair_keys,
+    row_keys,
+    unique_rows,
+)
+from elastoplast.options import Spec, check_value
 
 #: most bisections of one element in one call (each halves it; 60 already exceed any memory)
 MAX_BISECTIONS = 60
 
-_LOW32 = np.int64(0xFFFFFFFF)
+#: base of the edge keys (:func:`~elastoplast.mesh.topology.pair_keys`): fixed, not the node count,
+#: since the keys of bisected edges are kept while nodes are added
+EDGE_BASE = 2**32
 
 # Children as positions in [a, b, (c, d,) z] of the parent, in the child's own
 # labelled order; first index: the marked edge of the face opposite b (child 1)
@@ -97,16 +109,6 @@ _CHILD2 = {2: np.array([[1, 2, 3]]), 3: np.array([[1, 2, 3, 4], [1, 3, 2, 4], [2
 # of (z, b, c, d).
 _SIGN1 = {2: np.array([-1]), 3: np.array([1, -1, 1])}
 _SIGN2 = {2: np.array([1]), 3: np.array([-1, 1, -1])}
-
-
-def _local_edges(d: int) -> np.ndarray:
-    return np.array([(i, j) for i in range(d + 1) for j in range(i + 1, d + 1)])
-
-
-def _edge_key(i: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """One int64 per undirected edge: ``min << 32 | max``."""
-    lo, hi = np.minimum(i, j).astype(np.int64), np.maximum(i, j).astype(np.int64)
-    return (lo << 32) | hi
 
 
 @dataclass(frozen=True)
@@ -167,9 +169,9 @@ def initial_state(mesh: Mesh) -> BisectionState:
     d = _check_mesh(mesh)
     cells = np.asarray(mesh.cells, dtype=np.int64)
     n = cells.shape[0]
-    le = _local_edges(d)
+    le = local_edges(d)
     p, q = cells[:, le[:, 0]], cells[:, le[:, 1]]  # (n, n_edges)
-    keys = _edge_key(p, q)
+    keys = pair_keys(p, q, EDGE_BASE)
     # the same bits for an edge in every simplex: always (larger node - smaller node)
     diff = mesh.points[np.maximum(p, q)] - mesh.points[np.minimum(p, q)]
     length2 = np.einsum("...i,...i->...", diff, diff)
@@ -211,14 +213,6 @@ def initial_state(mesh: Mesh) -> BisectionState:
 # ----------------------------------------------------------------------------
 
 
-def _row_keys(rows: np.ndarray, base: int) -> np.ndarray:
-    """Injective int64 keys of sorted rows with entries below ``base``."""
-    key = np.zeros(rows.shape[0], dtype=np.int64)
-    for col in range(rows.shape[1]):
-        key = key * base + rows[:, col]
-    return key
-
-
 def _facet_tags(mesh: Mesh, cells: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """``(tags (n_el, d+1), members)``: ``tags[t, i]`` numbers the distinct
     group facet that the face of ``t`` opposite its local vertex ``i`` is (-1:
@@ -231,13 +225,13 @@ def _facet_tags(mesh: Mesh, cells: np.ndarray) -> tuple[np.ndarray, dict[str, np
         if np.ndim(g) != 2 or np.shape(g)[1] != d:
             raise InputError(f"mesh.groups.{name}", f"facets of a {d}D mesh have {d} nodes, got an array of shape {np.shape(g)}")
     rows = np.sort(np.concatenate([np.asarray(g, dtype=np.int64) for g in mesh.groups.values()]), axis=1)
-    facets = np.unique(rows, axis=0)
+    facets, _, _ = unique_rows(rows, mesh.n_nodes)
     nodes = np.unique(facets)
     local = -np.ones(mesh.n_nodes, dtype=np.int64)
     local[nodes] = np.arange(nodes.size)
-    if float(nodes.size) ** d >= 2.0**62:  # pragma: no cover - beyond 2 million boundary nodes
+    if not keys_fit(nodes.size, d):  # pragma: no cover - beyond 2 million boundary nodes
         raise InputError("mesh.groups", f"{nodes.size} group nodes: too many to key facets in 64 bits")
-    fkeys = _row_keys(local[facets], nodes.size)  # sorted, as facets are
+    fkeys = row_keys(local[facets], nodes.size)  # sorted, as facets are
     on = local[cells] >= 0
     cand = np.flatnonzero(on.sum(axis=1) >= d)
     found = np.zeros(facets.shape[0], dtype=bool)
@@ -245,9 +239,8 @@ def _facet_tags(mesh: Mesh, cells: np.ndarray) -> tuple[np.ndarray, dict[str, np
         face = np.delete(cells[cand], i, axis=1)
         inside = np.all(local[face] >= 0, axis=1)
         el = cand[inside]
-        k = _row_keys(np.sort(local[face[inside]], axis=1), nodes.size)
-        pos = np.minimum(np.searchsorted(fkeys, k), fkeys.size - 1)
-        hit = fkeys[pos] == k
+        pos = locate_keys(fkeys, row_keys(np.sort(local[face[inside]], axis=1), nodes.size))
+        hit = pos >= 0
         # an interior facet would be met from two elements: tag it once
         pos, el = pos[hit], el[hit]
         fresh = ~found[pos]
@@ -259,18 +252,9 @@ def _facet_tags(mesh: Mesh, cells: np.ndarray) -> tuple[np.ndarray, dict[str, np
         raise InputError("mesh.groups", f"{int((~found).sum())} group facet(s) are no face of any element, first: nodes {bad.tolist()}")
     members = {}
     for name, g in mesh.groups.items():
-        k = _row_keys(np.sort(local[np.asarray(g, dtype=np.int64).reshape(-1, d)], axis=1), nodes.size)
-        members[name] = np.searchsorted(fkeys, k)
+        members[name] = locate_keys(fkeys, row_keys(np.sort(local[np.asarray(g, dtype=np.int64).reshape(-1, d)],
+                                                            axis=1), nodes.size))
     return tags, members
-
-
-def _normals(points: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """A vector fixing each facet's orientation: its tangent in 2D, its
-    (unnormalised) normal in 3D."""
-    X = points[rows]
-    if rows.shape[1] == 2:
-        return X[:, 1] - X[:, 0]
-    return np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
 
 
 def _refined_groups(mesh: Mesh, points: np.ndarray, cells: np.ndarray, tags: np.ndarray,
@@ -294,7 +278,7 @@ def _refined_groups(mesh: Mesh, points: np.ndarray, cells: np.ndarray, tags: np.
         offset = np.arange(total) - np.repeat(np.cumsum(c) - c, c)
         rows = faces[np.repeat(start[idx], c) + offset]
         parent_rows = np.asarray(mesh.groups[name], dtype=np.int64).reshape(-1, d)[np.repeat(np.arange(idx.size), c)]
-        flip = np.einsum("ij,ij->i", _normals(points, rows), _normals(mesh.points, parent_rows)) < 0
+        flip = np.einsum("ij,ij->i", facet_normals(points[rows]), facet_normals(mesh.points[parent_rows])) < 0
         rows[flip, :2] = rows[flip, 1::-1]
         groups[name] = rows
     return groups
@@ -332,13 +316,11 @@ def _check_state(state: BisectionState, mesh: Mesh) -> None:
 def _has_bisected_edge(cells: np.ndarray, keys: np.ndarray, endpoint: np.ndarray) -> np.ndarray:
     """Which simplices have an edge listed in the sorted ``keys``; only edges
     whose two ends are marked in ``endpoint`` are looked up."""
-    le = _local_edges(cells.shape[1] - 1)
+    le = local_edges(cells.shape[1] - 1)
     p, q = cells[:, le[:, 0]], cells[:, le[:, 1]]
     el, e = np.nonzero(endpoint[p] & endpoint[q])
-    k = _edge_key(p[el, e], q[el, e])
-    pos = np.minimum(np.searchsorted(keys, k), keys.size - 1)
     out = np.zeros(cells.shape[0], dtype=bool)
-    out[el[keys[pos] == k]] = True
+    out[el[locate_keys(keys, pair_keys(p[el, e], q[el, e], EDGE_BASE)) >= 0]] = True
     return out
 
 
@@ -412,17 +394,16 @@ def refine(mesh: Mesh, marked, state: BisectionState | None = None, *,
         if B.size == 0:
             break
         # midpoints of the refinement edges: existing ones, then new nodes
-        ek = _edge_key(cells[B, 0], cells[B, 1])
-        pos = np.minimum(np.searchsorted(keys, ek), max(keys.size - 1, 0))
+        ek = pair_keys(cells[B, 0], cells[B, 1], EDGE_BASE)
+        pos = locate_keys(keys, ek)
         z = -np.ones(B.size, dtype=np.int64)
-        if keys.size:
-            hit = keys[pos] == ek
-            z[hit] = mids[pos[hit]]
+        hit = pos >= 0
+        z[hit] = mids[pos[hit]]
         miss = z < 0
         new_keys, inv = np.unique(ek[miss], return_inverse=True)
         new_ids = points.shape[0] + np.arange(new_keys.size)
         z[miss] = new_ids[inv]
-        lo, hi = new_keys >> 32, new_keys & _LOW32
+        lo, hi = np.divmod(new_keys, EDGE_BASE)
         points = np.concatenate([points, 0.5 * (points[lo] + points[hi])])
         endpoint = np.concatenate([endpoint, np.zeros(new_keys.size, dtype=bool)])
         endpoint[lo] = endpoint[hi] = True
@@ -545,14 +526,8 @@ def shape_quality(mesh: Mesh) -> np.ndarray:
     d = mesh.dim
     X = mesh.points[mesh.cells]
     vol = np.abs(signed_volumes(mesh.points, mesh.cells))
-    le = _local_edges(d)
+    le = local_edges(d)
     longest = np.sqrt(np.max(np.sum((X[:, le[:, 0]] - X[:, le[:, 1]]) ** 2, axis=2), axis=1))
-    boundary = 0.0
-    for i in range(d + 1):
-        F = np.delete(X, i, axis=1)
-        if d == 2:
-            boundary = boundary + np.linalg.norm(F[:, 1] - F[:, 0], axis=1)
-        else:
-            boundary = boundary + 0.5 * np.linalg.norm(np.cross(F[:, 1] - F[:, 0], F[:, 2] - F[:, 0]), axis=1)
+    boundary = sum(facet_measure(np.delete(X, i, axis=1)) for i in range(d + 1))
     inradius = d * vol / boundary
     return inradius / longest * np.sqrt(2.0 * d * (d + 1))

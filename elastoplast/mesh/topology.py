@@ -1,4 +1,5 @@
-"""Mesh topology built once from the simplices: facets, boundary facets, normals, facet connectivity."""
+"""Mesh topology built once from the simplices: integer keys of vertex rows, local edge
+tables, facets, boundary facets, normals, facet connectivity."""
 
 from __future__ import annotations
 
@@ -8,21 +9,53 @@ import numpy as np
 
 from elastoplast.errors import InputError
 
+# ----------------------------------------------------------------------------
+# integer keys of vertex rows
+# ----------------------------------------------------------------------------
+
+
+def keys_fit(n: int, width: int) -> bool:
+    """Whether rows of ``width`` entries below ``n`` have distinct int64 :func:`row_keys`."""
+    return max(int(n), 1) ** int(width) < 2**62
+
+
+def row_keys(rows: np.ndarray, n: int) -> np.ndarray:
+    """One int64 per row (last axis) of integers in ``[0, n)``: the row read as digits
+    in base ``n``, so keys order like the rows (lexicographically); see :func:`keys_fit`."""
+    rows = np.asarray(rows)
+    key = rows[..., 0].astype(np.int64)
+    for j in range(1, rows.shape[-1]):
+        key = key * np.int64(n) + rows[..., j]
+    return key
+
+
+def pair_keys(i: np.ndarray, j: np.ndarray, n: int) -> np.ndarray:
+    """:func:`row_keys` of the unordered pairs ``{i, j}`` (elementwise, any shape):
+    one int64 per edge, ``min * n + max``."""
+    return row_keys(np.stack([np.minimum(i, j), np.maximum(i, j)], axis=-1), n)
+
+
+def locate_keys(table: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Index in the sorted int64 ``table`` of each of ``keys``, -1 where absent."""
+    if table.size == 0:
+        return np.full(np.shape(keys), -1, dtype=np.int64)
+    at = np.minimum(np.searchsorted(table, keys), table.size - 1)
+    return np.where(table[at] == keys, at, -1)
+
 
 def unique_rows(a: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(unique rows, inverse, counts)`` of an integer array with entries in ``[0, n)``.
+    """``(unique rows, inverse, counts)`` of an integer array with entries in ``[0, n)``,
+    the unique rows in lexicographic order.
 
-    Rows are encoded as one int64 key each when ``n**width`` fits (much faster than
-    ``np.unique(axis=0)``), otherwise compared as rows.
+    Rows are compared by their :func:`row_keys` when those fit (much faster than
+    ``np.unique(axis=0)``), otherwise as rows.
     """
     a = np.ascontiguousarray(a, dtype=np.int64)
     if a.shape[0] == 0:
         return a, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    if max(int(n), 1) ** a.shape[1] < 2**62:
-        key = a[:, 0].copy()
-        for j in range(1, a.shape[1]):
-            key = key * int(n) + a[:, j]
-        _, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    if keys_fit(n, a.shape[1]):
+        _, first, inverse, counts = np.unique(row_keys(a, n), return_index=True, return_inverse=True,
+                                              return_counts=True)
         return a[first], inverse.ravel(), counts
     uniq, inverse, counts = np.unique(a, axis=0, return_inverse=True, return_counts=True)
     return uniq, inverse.ravel(), counts
@@ -35,6 +68,17 @@ def locate_rows(table: np.ndarray, queries: np.ndarray, n: int) -> np.ndarray:
     where = np.full(inverse.max(initial=-1) + 1, -1, dtype=np.int64)
     where[inverse[: len(table)]] = np.arange(len(table))
     return where[inverse[len(table):]]
+
+
+# ----------------------------------------------------------------------------
+# edges, facets and their normals
+# ----------------------------------------------------------------------------
+
+
+def local_edges(dim: int) -> np.ndarray:
+    """The edges of a ``dim``-simplex as pairs ``(i, j)``, ``i < j``, of its local
+    vertices: ``(dim (dim+1) / 2, 2)`` in lexicographic order."""
+    return np.stack(np.triu_indices(dim + 1, 1), axis=1)
 
 
 def element_facets(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -53,20 +97,37 @@ def boundary_facets(cells: np.ndarray, n_nodes: int | None = None) -> np.ndarray
     return uniq[counts == 1]
 
 
-def outward_facet_normals(points: np.ndarray, cells: np.ndarray, elements: np.ndarray, local: np.ndarray,
-                     facets: np.ndarray) -> np.ndarray:
-    """Unit normals of ``facets`` pointing away from the vertex ``local`` of ``elements``."""
-    X = points[facets]
-    d = points.shape[1]
-    if d == 2:
+def facet_normals(X: np.ndarray) -> np.ndarray:
+    """Normals ``(m, d)`` of facets with vertex coordinates ``X (m, d, d)``, from edge
+    vectors: the perpendicular ``(t_y, -t_x)`` of the edge ``t`` in 2D, the cross
+    product of two edges in 3D. Their length is the facet's measure times ``(d-1)!``
+    and their direction follows the order of the vertices."""
+    if X.shape[1] == 2:
         t = X[:, 1] - X[:, 0]
-        nrm = np.stack([t[:, 1], -t[:, 0]], axis=1)
-    else:
-        nrm = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
-    opposite = points[cells[elements, local]]
-    flip = np.einsum("ij,ij->i", opposite - X[:, 0], nrm) > 0
-    nrm[flip] *= -1
-    return nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), np.finfo(float).tiny)
+        return np.stack([t[:, 1], -t[:, 0]], axis=1)
+    return np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
+
+
+def facet_measure(X: np.ndarray) -> np.ndarray:
+    """Measure of facets with vertex coordinates ``X (m, d, d)`` (length in 2D, area in 3D)."""
+    size = np.linalg.norm(facet_normals(X), axis=1)
+    return size if X.shape[1] == 2 else 0.5 * size
+
+
+def outward_facet_normals(points: np.ndarray, cells: np.ndarray, elements: np.ndarray,
+                          facets: np.ndarray) -> np.ndarray:
+    """Unit normals ``(m, d)`` of ``facets (m, d)`` (node indices) of ``elements``, from
+    edge vectors (:func:`facet_normals`) and oriented away from the element's centroid."""
+    X = points[facets]
+    nrm = facet_normals(X)
+    nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), np.finfo(float).tiny)
+    away = X.mean(axis=1) - points[cells[elements]].mean(axis=1)
+    return nrm * np.sign(np.einsum("md,md->m", nrm, away))[:, None]
+
+
+# ----------------------------------------------------------------------------
+# facet connectivity
+# ----------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -99,7 +160,7 @@ class FacetTopology:
     boundary_nodes: np.ndarray
     fixed: np.ndarray
     contact: np.ndarray
-    #: group facets that are interior facets of the mesh (ignored, see the module docstring)
+    #: group facets that are interior facets of the mesh (they carry no condition)
     ignored_interior: int = 0
 
     @property
@@ -139,16 +200,13 @@ def facet_topology(mesh, boundary) -> FacetTopology:
     element, non-manifold meshes and an empty contact zone.
     """
     cells, d = mesh.cells, mesh.dim
-    n = cells.shape[0]
-    faces = np.sort(np.concatenate([np.delete(cells, i, axis=1) for i in range(d + 1)]), axis=1)
-    elem = np.tile(np.arange(n), d + 1)
-    loc = np.repeat(np.arange(d + 1), n)
+    faces, elem, loc = element_facets(cells)
 
     named = [("clamped", name) for name in boundary.clamped] + [("contact", name) for name in boundary.contact]
     named += [(f"fix_component.{'xyz'[c]}", name) for c, names in boundary.fix_component.items() for name in names]
     group_faces = [np.sort(np.asarray(mesh.groups[name], dtype=np.int64).reshape(-1, d), axis=1) for _, name in named]
-    uniq, inv = np.unique(np.concatenate([faces] + group_faces), axis=0, return_inverse=True)
-    inv = inv.ravel()
+    rows = np.concatenate([faces] + group_faces)
+    uniq, inv, _ = unique_rows(rows, max(mesh.n_nodes, int(rows.max(initial=-1)) + 1))
     fid = inv[: faces.shape[0]]
     counts = np.bincount(fid, minlength=uniq.shape[0])
     if np.any(counts > 2):
@@ -193,27 +251,3 @@ def facet_topology(mesh, boundary) -> FacetTopology:
     if not contact.any():
         raise InputError("boundary.contact", f"the contact zone {list(boundary.contact)} has no boundary facets")
     return FacetTopology(i_elem, i_loc, i_vert, i_nodes, b_elem, b_loc, b_vert, b_nodes, fixed, contact, ignored)
-
-
-def facet_measure(points: np.ndarray) -> np.ndarray:
-    """Measure of facets with vertex coordinates ``(m, d, d)`` (length in 2D, area in 3D)."""
-    if points.shape[1] == 2:
-        return np.linalg.norm(points[:, 1] - points[:, 0], axis=1)
-    return 0.5 * np.linalg.norm(np.cross(points[:, 1] - points[:, 0], points[:, 2] - points[:, 0]), axis=1)
-
-
-def outward_normals(mesh, elements: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(unit outward normals (m, d), measures (m,))`` of facets ``nodes`` of ``elements``,
-    from edge vectors (a perpendicular in 2D, a cross product in 3D), oriented away
-    from the element's centroid. Independent of the gradients the program uses."""
-    X = mesh.points[nodes]
-    if mesh.dim == 2:
-        e = X[:, 1] - X[:, 0]
-        nrm = np.stack([e[:, 1], -e[:, 0]], axis=1)
-    else:
-        nrm = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
-    size = np.linalg.norm(nrm, axis=1)
-    nrm = nrm / size[:, None]
-    away = X.mean(axis=1) - mesh.points[mesh.cells[elements]].mean(axis=1)
-    nrm *= np.sign(np.einsum("md,md->m", nrm, away))[:, None]
-    return nrm, facet_measure(X)

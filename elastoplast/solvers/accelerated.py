@@ -58,7 +58,7 @@ from elastoplast.errors import InputError
 from elastoplast.fem.discretize import nondimensionalize
 from elastoplast.fem.material import Material, n_components, return_mapping
 from elastoplast.linalg.direct import FACTORIZATIONS
-from elastoplast.problem.options import MAX_ITER_CEILING, SolverOptions, option
+from elastoplast.options import MAX_ITER_CEILING, SolverOptions, option
 from elastoplast.solvers.contact import (
     iterative_context,
     metric_projection,
@@ -80,7 +80,7 @@ DEFAULT_PENALTY = {"stiffness": 0.4, "identity": 0.6}
 class FastOptions(SolverOptions):
     """Settings of :func:`solve_uzawa_fast` and :func:`solve_alg2` (``tol``,
     ``max_iter``, ``time_limit``, ``progress``:
-    :class:`~elastoplast.problem.options.SolverOptions`). The step is fixed by FISTA's
+    :class:`~elastoplast.options.SolverOptions`). The step is fixed by FISTA's
     bound (:data:`RHO_SHARE`), so there is no ``rho``."""
 
     max_iter: int = option(5000, int, "iteration limit", lo=1, hi=MAX_ITER_CEILING)

@@ -25,7 +25,7 @@ import scipy.sparse as sp
 from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.fem.discretize import Discretization, Units, nondimensionalize
 from elastoplast.fem.material import SQRT_3_2, return_mapping, von_mises
-from elastoplast.problem.options import SolverOptions, option
+from elastoplast.options import SolverOptions, option
 from elastoplast.solvers.backends import ConicAnswer, clarabel_settings, solve_clarabel
 from elastoplast.solvers.loop import within_tolerance
 from elastoplast.solvers.polish import newton_polish
@@ -34,7 +34,7 @@ from elastoplast.solvers.polish import newton_polish
 @dataclass(frozen=True)
 class ConicOptions(SolverOptions):
     """Settings of the conic methods (``tol``, ``max_iter``, ``time_limit``,
-    ``progress``: :class:`~elastoplast.problem.options.SolverOptions`).
+    ``progress``: :class:`~elastoplast.options.SolverOptions`).
 
     ``tol`` is what every method's ``tol`` is: the answer is CONVERGED when
     the certified worst KKT residual is at most ``tol``. ``ip_tol`` is

@@ -94,10 +94,10 @@ def solve_contact_qp(S: np.ndarray, g: np.ndarray, lam0: np.ndarray | None = Non
             lam[hit] = 0.0
             free[hit] = False
             lam[~free] = 0.0
-    return _nnls_fallback(S, g)
+    return nnls_fallback(S, g)
 
 
-def _nnls_fallback(S: np.ndarray, g: np.ndarray) -> np.ndarray:
+def nnls_fallback(S: np.ndarray, g: np.ndarray) -> np.ndarray:
     """The same QP as NNLS: with ``S = L L^T``, ``min |L^T lam + L^{-1} g|^2``."""
     from scipy.optimize import nnls
 
@@ -178,9 +178,9 @@ class IterativeProjection:
 
     def __init__(self, nd: Discretization, length: float, M: np.ndarray, weight: float | None = None,
                  rtol: float = 1e-6, reuse: bool = True):
+        from elastoplast.fem.assembly import assemble
         from elastoplast.linalg.amg import (
             FaceSystems,
-            assemble,
             block_layout,
             contact_dofs,
         )

@@ -9,11 +9,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
+from elastoplast.fem.assembly import Layout, ScalarView, assemble, scalar_view
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import consistent_tangent
 from elastoplast.linalg.amg import (
     FaceSystems,
-    assemble,
     block_layout,
     contact_dofs,
     pcg,
@@ -23,20 +23,18 @@ from elastoplast.linalg.direct import SPDSolver
 
 @dataclass(frozen=True)
 class HessianLayout:
-    """Element-by-element assembly of the Hessian of f in the variables y.
+    """The fixed pattern of the Hessian of f in the variables y.
 
-    ``B_local (n_el, k, m)`` are the element strain matrices on the ``m``
-    local dofs ``local (n_el, m)`` (free-dof numbers, -1 where fixed). The
-    upper triangle of the ``(n_free + 1)`` Hessian is stored in CSR with
-    ``indptr``/``indices``; ``slots (n_el, m(m+1)/2)`` sends each upper entry
-    ``upper`` of an element matrix to its slot (-1: a fixed dof), ``u_slots``/``u_rows`` are the slots of the column
-    of U, ``diag`` the diagonal slots, ``row``/``col`` each slot's indices.
+    ``view`` is the upper triangle of ``K`` on the free dofs
+    (:func:`~elastoplast.fem.assembly.scalar_view` of the discretisation's
+    ``layout``) bordered by one more row and column for U, so element
+    matrices fill it directly; ``indptr``/``indices`` are its CSR arrays,
+    ``u_slots``/``u_rows`` the slots of the column of U and their rows,
+    ``diag`` the diagonal slots, ``row``/``col`` each slot's indices.
     """
 
-    B_local: np.ndarray
-    local: np.ndarray
-    upper: np.ndarray
-    slots: np.ndarray
+    layout: Layout
+    view: ScalarView
     indptr: np.ndarray
     indices: np.ndarray
     row: np.ndarray
@@ -48,75 +46,64 @@ class HessianLayout:
 
     @property
     def size(self) -> int:
-        return self.indptr.size - 1
+        return self.view.n
+
+
+def bordered(view: ScalarView, rows: np.ndarray) -> tuple[ScalarView, np.ndarray]:
+    """``view`` with one more row and column, last, holding ``rows`` (sorted)
+    and the new diagonal; returns it and the slots of that column."""
+    n = view.n
+    extra = np.zeros(n + 1, dtype=np.int64)
+    extra[rows] = 1
+    extra[n] = 1
+    counts = np.append(np.diff(view.indptr), 0) + extra
+    indptr = np.zeros(n + 2, dtype=view.indptr.dtype)
+    np.cumsum(counts, out=indptr[1:])
+    # an old entry moves by the number of new entries in the rows above it
+    moved = np.arange(view.size) + np.repeat(indptr[:-2] - view.indptr[:-1], np.diff(view.indptr))
+    indices = np.full(indptr[-1], n, dtype=view.indices.dtype)
+    indices[moved] = view.indices
+    u_slots = indptr[1:][extra > 0] - 1
+    slots = np.append(moved, indptr[-1])[view.slots]
+    # filled through its slots only: the column of U is no block value, so no ``take``
+    return ScalarView(n=n + 1, indptr=indptr, indices=indices, slots=slots, entries=view.entries), u_slots
 
 
 def hessian_layout(disc: Discretization) -> HessianLayout:
-    """Local strain matrices and the fixed pattern of the Hessian (done once)."""
-    n_el, k, d = disc.n_elements, disc.k, disc.dim
-    m = (d + 1) * d
-    position = -np.ones(disc.mesh.n_nodes * d, dtype=np.int64)
-    position[disc.free] = np.arange(disc.n_free)
-    local = position[(disc.mesh.cells[:, :, None] * d + np.arange(d)).reshape(n_el, m)]
-    B = disc.B.tocoo()
-    el, comp = B.row // k, B.row % k
-    slot = np.argmax(local[el] == B.col[:, None], axis=1)
-    B_local = np.zeros((n_el, k, m))
-    B_local[el, comp, slot] = B.data  # (row, col) pairs of B are unique
-
-    iu, ju = np.triu_indices(m)
-    gi, gj = local[:, iu], local[:, ju]
-    keep = ((gi >= 0) & (gj >= 0)).ravel()
-    lo, hi = np.minimum(gi, gj).ravel()[keep], np.maximum(gi, gj).ravel()[keep]
-    n = disc.n_free + 1
+    """The fixed pattern of the Hessian (done once)."""
+    view = scalar_view(disc.layout, disc.free, upper=True, slots=True)
     cdofs = contact_dofs(disc)
     # the column of U: every dof coupled to a contact dof, and U itself
-    is_c = np.zeros(n - 1, dtype=bool)
+    is_c = np.zeros(view.n, dtype=bool)
     is_c[cdofs] = True
-    touch = is_c[lo] | is_c[hi]
-    u_rows = np.unique(np.concatenate([lo[touch], hi[touch]]))
-    rows = np.concatenate([lo, u_rows, [n - 1]])
-    cols = np.concatenate([hi, np.full(u_rows.size, n - 1), [n - 1]])
-    pattern = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))  # sums duplicates, sorts
-    pattern.sort_indices()
-    indptr, col = pattern.indptr, pattern.indices
-    row = np.repeat(np.arange(n), np.diff(indptr))
-    uniq = row.astype(np.int64) * n + col
-    inverse = np.searchsorted(uniq, rows.astype(np.int64) * n + cols)
-    n_el_keys = lo.size
-    diag = np.searchsorted(uniq, np.arange(n, dtype=np.int64) * (n + 1))
-    slots = -np.ones(keep.size, dtype=np.int64)
-    slots[keep] = inverse[:n_el_keys]
-    slots = slots.reshape(n_el, iu.size)
-    return HessianLayout(
-        B_local=B_local, local=local, upper=np.stack([iu, ju]), slots=slots,
-        indptr=indptr.astype(np.int64), indices=col.astype(np.int64), row=row, col=col, diag=diag,
-        u_slots=inverse[n_el_keys:], u_rows=np.append(u_rows, n - 1), contact_dofs=cdofs,
-    )
+    row = np.repeat(np.arange(view.n), np.diff(view.indptr))
+    touch = is_c[row] | is_c[view.indices]
+    u_rows = np.unique(np.concatenate([row[touch], view.indices[touch]]))
+    view, u_slots = bordered(view, u_rows)
+    row = np.repeat(np.arange(view.n), np.diff(view.indptr))
+    diag = np.flatnonzero(row == view.indices)
+    return HessianLayout(layout=disc.layout, view=view, indptr=view.indptr, indices=view.indices, row=row,
+                         col=view.indices, diag=diag, u_slots=u_slots, u_rows=np.append(u_rows, view.n - 1),
+                         contact_dofs=cdofs)
 
 
-def assemble_hessian(lay: HessianLayout, volumes: np.ndarray, elements: np.ndarray, tangents: np.ndarray,
+def assemble_hessian(lay: HessianLayout, elements: np.ndarray | None, tangents: np.ndarray,
                      elastic: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Upper-triangle CSR values of ``T^T diag(K_t, 0) T`` in the variables y.
 
     ``K_t = sum_T |T| B_T^T C_ep,T B_T``; with ``u = y_u + U e_c`` (``e_c`` the
     indicator of the vertical contact dofs) the Hessian in y is
     ``[[K_t, K_t e_c], [e_c^T K_t, e_c^T K_t e_c]]``. ``tangents`` are
-    ``C_ep`` of ``elements`` (one ``(k, k)`` matrix for all of them, or one each).
-    With ``elastic = (C, values of K for C everywhere)`` only ``elements``
+    ``C_ep`` of ``elements`` (one ``(k, k)`` matrix for all of them, or one each;
+    None: every element). With ``elastic = (C, values of K for C everywhere)`` only ``elements``
     (the plastic ones) are assembled, as a correction ``C_ep - C``.
     """
     if elastic is None:
-        C, data = 0.0, np.zeros(lay.indices.size)
+        C, data = None, np.zeros(lay.view.size)
     else:
         C, base = elastic
         data = base.copy()
-    Bl = lay.B_local[elements]
-    DB = np.matmul((tangents - C) * volumes[elements, None, None], Bl)
-    Ke = np.matmul(np.swapaxes(Bl, 1, 2), DB)[:, lay.upper[0], lay.upper[1]]
-    slots = lay.slots[elements]
-    keep = slots >= 0
-    data += np.bincount(slots[keep], weights=Ke[keep], minlength=data.size)
+    assemble(lay.layout, tangents, elements, out=data, subtract=C, view=lay.view)
     n = lay.size
     K = sp.csr_matrix((data, lay.indices, lay.indptr), shape=(n, n))
     ec = np.zeros(n)
@@ -158,13 +145,12 @@ class DirectHessian:
         self.backend = self.linear.backend
         self.reuse = options.reuse_factorization
         C = nd.material.stiffness(nd.dim)
-        self.elastic = (C, assemble_hessian(self.lay, nd.volumes, np.arange(nd.n_elements), C))
-        self.volumes = nd.volumes
+        self.elastic = (C, assemble_hessian(self.lay, None, C))
         self.costs = {"factored": False}
         self.data = self.elastic[1]
 
     def update(self, st: State) -> None:
-        self.data = assemble_hessian(self.lay, self.volumes, st.plastic, st.tangent, self.elastic)
+        self.data = assemble_hessian(self.lay, st.plastic, st.tangent, self.elastic)
 
     def diagonal(self) -> np.ndarray:
         return self.data[self.lay.diag]

@@ -37,7 +37,7 @@ from elastoplast.certificate.solution import (
 )
 from elastoplast.fem.discretize import Discretization, Units
 from elastoplast.fem.material import von_mises
-from elastoplast.problem.options import SolverOptions
+from elastoplast.options import SolverOptions
 
 #: the keys of every history row (methods may add their own after these)
 HISTORY_KEYS = ("iteration", "residuals", "kkt_worst", "U", "n_active", "n_plastic", "time_s")

@@ -48,7 +48,7 @@ from elastoplast.fem.discretize import Discretization, nondimensionalize
 from elastoplast.fem.material import return_mapping
 from elastoplast.linalg.amg import contact_dofs, one_blas_thread
 from elastoplast.linalg.direct import pardiso_available
-from elastoplast.problem.options import LOOSEST_TOL, TIGHTEST_TOL, SolverOptions, option
+from elastoplast.options import LOOSEST_TOL, TIGHTEST_TOL, SolverOptions, option
 from elastoplast.solvers.hessian import AMGHessian, DirectHessian, State
 from elastoplast.solvers.loop import Monitor, Verdict
 
@@ -56,7 +56,7 @@ from elastoplast.solvers.loop import Monitor, Verdict
 @dataclass(frozen=True)
 class NewtonOptions(SolverOptions):
     """Settings of :func:`solve_newton` (``tol``, ``max_iter``, ``time_limit``,
-    ``progress``: :class:`~elastoplast.problem.options.SolverOptions`).
+    ``progress``: :class:`~elastoplast.options.SolverOptions`).
 
     ``linear_solver``: ``"pardiso"`` (MKL, via pypardiso), ``"splu"`` (SciPy),
     ``"amg"`` (conjugate gradients with smoothed-aggregation AMG,

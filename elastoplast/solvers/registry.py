@@ -1,7 +1,7 @@
 """The method registry: one name per solver, its options, and the one way in.
 
 A method is a :class:`Method`: a function ``run(disc, options) -> Solution`` and
-its options class (a :class:`~elastoplast.problem.options.SolverOptions`). Every entry
+its options class (a :class:`~elastoplast.options.SolverOptions`). Every entry
 point builds options through :func:`method_options`, so a command-line flag, a
 ``[solver]`` table, a campaign axis and ``solve(disc, method, **options)`` are
 checked alike: an unknown option, or one the method does not have (``rho`` for
@@ -18,7 +18,7 @@ from elastoplast.certificate.solution import Solution
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.locking import check_perfect_plasticity
-from elastoplast.problem.options import SolverOptions
+from elastoplast.options import SolverOptions
 from elastoplast.solvers.accelerated import FastOptions, solve_accelerated
 from elastoplast.solvers.conic import (
     ConicOptions,

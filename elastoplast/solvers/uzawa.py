@@ -35,7 +35,7 @@ from elastoplast.errors import InputError
 from elastoplast.fem.discretize import Discretization, Units, nondimensionalize
 from elastoplast.fem.material import Material, return_mapping
 from elastoplast.linalg.direct import FACTORIZATIONS
-from elastoplast.problem.options import MAX_ITER_CEILING, SolverOptions, option
+from elastoplast.options import MAX_ITER_CEILING, SolverOptions, option
 from elastoplast.solvers.contact import (
     iterative_context,
     metric_projection,
@@ -89,7 +89,7 @@ def metric_matrix(disc: Discretization) -> sp.csc_matrix:
 @dataclass(frozen=True)
 class UzawaOptions(SolverOptions):
     """Settings of :func:`solve_uzawa` (``tol``, ``max_iter``, ``time_limit``,
-    ``progress``: :class:`~elastoplast.problem.options.SolverOptions`).
+    ``progress``: :class:`~elastoplast.options.SolverOptions`).
 
     ``rho``: the step, in 1/stress (``None``: :func:`default_rho`); it must lie
     in ``(0, 2 / lambda_max(C))``, checked against the material at solve time.

@@ -55,11 +55,8 @@ from elastoplast.bounds.lower import (
 )
 from elastoplast.certificate.solution import Status
 from elastoplast.errors import InputError, expect
-from elastoplast.fem.discretize import (
-    Discretization,
-    element_geometry,
-    free_strain_operator,
-)
+from elastoplast.fem.discretize import Discretization, free_strain_operator
+from elastoplast.fem.assembly import element_geometry
 from elastoplast.fem.material import identity_vector
 from elastoplast.mesh.base import Mesh
 from elastoplast.mesh.topology import local_edges, locate_rows, unique_rows

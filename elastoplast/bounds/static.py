@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from elastoplast.errors import InputError
-from elastoplast.fem.discretize import STRAIN_ROWS, Discretization, element_geometry
+from elastoplast.fem.assembly import STRAIN_ROWS, element_geometry
+from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import n_components, von_mises
 from elastoplast.mesh.topology import FacetTopology, facet_measure, outward_facet_normals
 

@@ -4,14 +4,15 @@ Every stiffness-type matrix (the elastic stiffness ``D = C``, Newton's tangent
 ``D_T = C_ep,T``, Uzawa's metric ``D = I``) is assembled here, on one
 :class:`Layout` per discretisation: the pattern of ``d x d`` blocks between
 nodes that share an element, over every dof, and the block ``slots`` where each
-element's vertex pairs add. Values live either on the blocks themselves (BSR,
-what multigrid takes) or on a :class:`ScalarView` of them: the CSR pattern of
-some dofs (the free ones), whole or its upper triangle, with the position of
-each element entry in it (what the direct factorisations take). :func:`fill`
-adds element matrices ``(n, m, m)`` into either with one ``bincount``;
-:func:`assemble` builds the element matrices from the shape gradients in
-chunks and fills them, so its memory is the pattern, the gradients and the
-slots, never a global copy of the element matrices.
+element's vertex pairs add. Values live on the blocks themselves (BSR, what
+multigrid takes) or on a :class:`ScalarView` of them: the CSR pattern of some
+dofs (the free ones), whole or its upper triangle (what the direct
+factorisations take), whose values are block values picked by ``take``, or,
+for a matrix refilled at every step (Newton's), written directly through
+element slots derived from the blocks'. :func:`fill` adds element matrices
+``(n, m, m)`` into either; :func:`assemble` builds the element matrices from
+the shape gradients in chunks and fills them, so its memory is the pattern,
+the gradients and the slots, never a global copy of the element matrices.
 
 Local dofs of an element are numbered ``a * d + component`` (vertex ``a``),
 global ones ``node * d + component``.
@@ -258,43 +259,40 @@ def scalar_view(lay: Layout, dofs: np.ndarray, upper: bool = False, slots: bool 
     order), whole or its ``upper`` triangle, with the element ``slots`` into it
     when asked.
 
-    The block values are put in the CSR order of the whole matrix (block row
-    ``I`` gives the rows ``I d + i``, each running over the row's blocks) and
-    the entries of the kept dofs are picked in that order: no sort. Element
-    matrices are symmetric, so for the upper triangle each element gives its
-    own upper entries, at the global entry or its transpose.
+    Row ``r = I d + i`` of the whole matrix runs over the blocks of block row
+    ``I`` and their columns ``j``, so its entries are written in CSR order
+    directly and those of kept dofs picked: no sort. Element matrices are
+    symmetric, so for the upper triangle each element gives its own upper
+    entries, at the global entry or its transpose.
     """
     d, dd, m = lay.dim, lay.dim**2, (lay.dim + 1) * lay.dim
     position = np.full(lay.n_dofs, -1, dtype=np.int64)
     position[dofs] = np.arange(dofs.size)
-    first = lay.indptr[:-1].astype(np.int64)[lay.brow]  # first block of each block's row
-    width = np.diff(lay.indptr).astype(np.int64)[lay.brow] * d  # length of the scalar rows it is in
-    at = (first * dd + (np.arange(lay.n_blocks) - first) * d)[:, None, None] + width[:, None, None] * np.arange(d)[:, None]
-    order = np.empty(lay.size, dtype=np.int64)
-    order[(at + np.arange(d)).reshape(-1)] = np.arange(lay.size)  # the block value of each CSR entry
-    del first, width, at
-    block, ij = np.divmod(order, dd)
-    P = position[lay.brow[block] * d + ij // d]
-    Q = position[lay.indices[block] * d + ij % d]
-    kept = (P >= 0) & (Q >= 0)
-    lower = kept & (P > Q)
-    if upper:
-        kept &= ~lower
-    take, rows, cols = order[kept], P[kept], Q[kept]
+    node, i = np.divmod(dofs, d)
+    first = lay.indptr[node].astype(np.int64)  # first block of each row
+    length = (lay.indptr[node + 1] - first) * d
+    row = np.repeat(np.arange(dofs.size), length)  # the row of each entry of the kept rows
+    offset = np.arange(row.size) - np.repeat(np.cumsum(length) - length, length)
+    block, j = np.divmod(offset, d)
+    block += first[row]
+    col = position[lay.indices[block] * d + j]
+    kept = col >= row if upper else col >= 0
+    take = block[kept] * dd + i[row[kept]] * d + j[kept]  # the block value of each entry
     it = index_dtype(max(take.size, dofs.size) + 1)
     indptr = np.zeros(dofs.size + 1, dtype=it)
-    np.cumsum(np.bincount(rows, minlength=dofs.size), out=indptr[1:])
-    view = ScalarView(n=dofs.size, indptr=indptr, indices=cols.astype(it), take=take)
+    np.cumsum(np.bincount(row[kept], minlength=dofs.size), out=indptr[1:])
+    view = ScalarView(n=dofs.size, indptr=indptr, indices=col[kept].astype(it), take=take)
     if not slots:
         return view
     where = np.full(lay.size, take.size, dtype=np.int64)  # the view's value of each block value
     where[take] = np.arange(take.size)
     if upper:  # a lower entry goes where its transpose is
-        b, i, j = block[lower], ij[lower] // d, ij[lower] % d
+        lower = (col >= 0) & (col < row)
+        b, il, jl = block[lower], i[row[lower]], j[lower]
         keys = lay.brow.astype(np.int64) * lay.n_nodes + lay.indices
         transposed = np.searchsorted(keys, lay.indices[b].astype(np.int64) * lay.n_nodes + lay.brow[b])
-        where[order[lower]] = where[transposed * dd + j * d + i]
-    del order, block, ij, P, Q, kept, lower
+        where[b * dd + il * d + jl] = where[transposed * dd + jl * d + il]
+    del row, offset, block, j, col, kept
     entries = np.flatnonzero(np.arange(m)[:, None] <= np.arange(m)) if upper else None
     n_el = lay.slots.shape[0]
     element_slots = np.empty((n_el, m * m if entries is None else entries.size), dtype=np.int64)

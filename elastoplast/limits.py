@@ -13,7 +13,7 @@ import stat
 from pathlib import Path
 from typing import Sequence
 
-from elastoplast.errors import InputError
+from elastoplast.errors import InputError, elide
 
 # Bytes per element of the mesh and discretisation build at its peak (measured, see
 # discretization_bytes)
@@ -27,8 +27,7 @@ MAX_ELEMENTS = 2**40
 
 def shown(path: Path) -> str:
     """A path for a one-line message (very long ones cut in the middle)."""
-    text = str(path)
-    return text if len(text) <= 200 else f"{text[:100]}...{text[-80:]}"
+    return elide(str(path), 200)
 
 
 def as_path(path, field: str, what: str) -> Path:

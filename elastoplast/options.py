@@ -17,7 +17,10 @@ import numbers
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+import numpy as np
+
 from elastoplast.errors import InputError
+from elastoplast.errors import short_repr
 
 #: the loosest certificate tolerance that still means "solved": every residual of the
 #: certificate is relative, so 1e-2 already admits a 1% error in force balance
@@ -58,7 +61,9 @@ def _describe(spec: Spec) -> str:
         return f"one of {list(spec.choices)}"
     if spec.kind is bool:
         return "true or false"
-    what = {int: "an integer", float: "a number", str: "a string", object: "a value"}.get(spec.kind, f"a {spec.kind.__name__}")
+    what = {int: "an integer", float: "a number", str: "a string", object: "a value"}.get(spec.kind)
+    if what is None:  # an object only Python can pass (a warm start): no file or flag holds one
+        return f"a {spec.kind.__name__} object, given from Python" + (" (or none)" if spec.none else "")
     if spec.lo is not None and spec.hi is not None:
         what += f" in {'(' if spec.lo_open else '['}{spec.lo:g}, {spec.hi:g}]"
     elif spec.lo is not None:
@@ -67,11 +72,6 @@ def _describe(spec: Spec) -> str:
         what += f" <= {spec.hi:g}"
     return what + (" (or none)" if spec.none else "")
 
-
-def short_repr(value: Any, width: int = 60) -> str:
-    """``repr(value)`` cut to ``width`` characters, so that a message stays one short line."""
-    text = repr(value)
-    return text if len(text) <= width else text[: width - 3] + "..."
 
 
 def check_value(name: str, value: Any, spec: Spec) -> Any:
@@ -117,6 +117,20 @@ def check_value(name: str, value: Any, spec: Spec) -> Any:
     return value
 
 
+def check_array(name: str, value: Any) -> np.ndarray:
+    """``value`` as a float array of any shape, or an InputError naming ``name``:
+    numbers only, never strings, booleans, ``None`` or objects, which numpy would
+    convert or keep as objects (``np.asarray(['1'], float)`` is ``[1.0]``). NaN and
+    infinity pass: the caller says what it needs of the values and of the shape."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nested lists
+        arr = np.asarray(None)
+    if arr.dtype.kind not in "iuf":
+        raise InputError(name, f"expected an array of numbers, got {short_repr(value)}")
+    return arr.astype(float, copy=False)
+
+
 @dataclass(frozen=True)
 class SolverOptions:
     """Options every method has.
@@ -147,7 +161,13 @@ class SolverOptions:
     @classmethod
     def build(cls, values: Mapping[str, Any] | None = None, *, method: str = "", prefix: str = "") -> "SolverOptions":
         """Options from a mapping; unknown names are refused, errors name
-        ``prefix + option`` (``"solver."`` for a TOML table, ``"--"`` for flags)."""
+        ``prefix + option`` (``"solver."`` for a TOML table, ``"--"`` for flags).
+        Anything but a mapping (or ``None``, the defaults) is refused naming the
+        table (``prefix`` without its dot) or ``options``."""
+        if values is not None and not isinstance(values, Mapping):
+            field = prefix[:-1] if prefix.endswith(".") else "options"
+            raise InputError(field, f"expected a mapping of option names to values (or a {cls.__name__}), "
+                                    f"got {short_repr(values)}")
         values = dict(values or {})
         specs = cls.specs()
         for name in values:

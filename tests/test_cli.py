@@ -73,7 +73,7 @@ def test_solve_writes_vtu_and_summary(tmp_path, method, capsys):
 
 def test_default_problem_runs(tmp_path, monkeypatch):
     """With no problem file the built-in default is solved (a smaller copy here)."""
-    import elastoplast.cli.main as cli
+    import elastoplast.cli.commands as cli
 
     data = read_toml(cli.default_problem_path())
     data["mesh"]["divisions"] = [6, 6, 3]

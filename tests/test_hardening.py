@@ -213,14 +213,14 @@ def test_corrupt_store_is_an_input_error(tmp_path, capsys):
     store.mkdir()
     (store / "index.sqlite").write_bytes(b"this is not an SQLite database" * 100)
     code, line = run(capsys, "compare", store, "--method", "conic", "--workers", "1", "--quiet")
-    assert code == 2 and line.startswith("error: store:") and "damaged" in line, line
+    assert code == 2 and line.startswith("error: STORE:") and "damaged" in line, line
     code, line = run(capsys, "campaign", PROBLEMS / "campaign_2d.toml", "--out", store, "--workers", "1")
-    assert code == 2 and line.startswith("error: store:"), line
+    assert code == 2 and line.startswith("error: --out:"), line  # campaign's store is its --out
 
 
 @pytest.mark.parametrize("flags,field", [
-    (["--workers", "-2"], "workers"), (["--workers", "0"], "workers"), (["--workers", "100000"], "workers"),
-    (["--scheduler", "not a url"], "scheduler"), (["--scheduler", "tcp://127.0.0.1:99999"], "scheduler"),
+    (["--workers", "-2"], "--workers"), (["--workers", "0"], "--workers"), (["--workers", "100000"], "--workers"),
+    (["--scheduler", "not a url"], "--scheduler"), (["--scheduler", "tcp://127.0.0.1:99999"], "--scheduler"),
 ])
 def test_bad_cluster_arguments_are_refused_and_leave_no_store(tmp_path, capsys, flags, field):
     """The issue: `--workers -2` waited forever; `--scheduler "not a url"` gave a traceback."""
@@ -232,7 +232,7 @@ def test_bad_cluster_arguments_are_refused_and_leave_no_store(tmp_path, capsys, 
 def test_unreachable_scheduler_leaves_no_store(tmp_path, capsys):
     code, line = run(capsys, "campaign", PROBLEMS / "campaign_2d.toml", "--out", tmp_path / "store", "--quiet",
                      "--scheduler", "tcp://127.0.0.1:9")  # the discard port: nothing listens
-    assert code == 2 and line.startswith("error: scheduler:"), line
+    assert code == 2 and line.startswith("error: --scheduler:"), line
     assert not (tmp_path / "store").exists()
 
 

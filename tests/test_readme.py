@@ -8,7 +8,7 @@ import re
 import shlex
 import shutil
 
-import elastoplast.cli.main as cli
+import elastoplast.cli.commands as cli
 from elastoplast.cli.main import main
 from elastoplast.io.output import OUTPUT_MARKER
 from elastoplast.problem.definition import read_toml

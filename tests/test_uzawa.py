@@ -137,11 +137,23 @@ def test_max_iterations_reports_status_and_true_residuals():
 
 
 def test_divergence_test_stops_the_run():
-    # with divergence_factor below 1 any residual above the first one counts as blow-up;
-    # the first steps of Uzawa from u = 0 do not decrease every residual
-    disc = small("cylinder_2d")
-    sol = solve_uzawa(disc, UzawaOptions(divergence_factor=1e-30))
-    assert sol.status is ep.Status.DIVERGED
+    """A worst residual above divergence_factor times the first one ends the run as
+    diverged; a factor below 1 is refused (the first residual itself would count)."""
+    from elastoplast.fem.discretize import nondimensionalize
+    from elastoplast.solvers.loop import Monitor
+
+    disc, ref = small("cylinder_2d"), reference("cylinder_2d")
+    nd, units = nondimensionalize(disc)
+    monitor = Monitor("uzawa", disc, nd, units, UzawaOptions(progress=False), divergence_factor=10.0)
+    sigma, xi = ref.sigma / units.stress, ref.xi / units.stress
+    u, U = disc.free_displacement(ref.u) / units.displacement, ref.U / units.displacement
+    assert monitor.check(0, 2 * sigma, xi, u, U) is None  # the first residual sets the scale
+    grown = monitor.check(1, 50 * sigma, xi, u, U)
+    assert grown is not None and grown.status is ep.Status.DIVERGED, grown
+    assert monitor.history[1]["kkt_worst"] > 10.0 * monitor.history[0]["kkt_worst"]
+    with pytest.raises(ep.InputError) as exc:
+        UzawaOptions(divergence_factor=1e-30)
+    assert exc.value.field == "divergence_factor"
 
 
 def test_options_of_other_methods_are_refused():

@@ -22,6 +22,8 @@ from elastoplast.bounds.upper import (
 )
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
+from elastoplast.certificate.kkt import real_number
+from elastoplast.certificate.solution import check_solution
 
 
 @dataclass(frozen=True)
@@ -70,30 +72,51 @@ def combine(upper: UpperBound, lower) -> Bounds:
     (:class:`elastoplast.bounds.lower.LowerBound`) on the same mesh, with the local
     gap terms integrated exactly (τ, η linear per element and ε(v) constant; λ and
     ``v_d - V`` linear on a facet)."""
+    from elastoplast.bounds.lower import LowerBound
     from elastoplast.bounds.static import mass_matrix
     from elastoplast.mesh.topology import facet_measure
 
+    expect(upper, UpperBound, "upper", "ep.upper_bound(disc, solution)")
+    expect(lower, LowerBound, "lower", "ep.solve_lower_bound(disc)")
+    if np.shape(lower.local.element_energy) != np.shape(upper.element_energy):
+        raise InputError("lower", "is the lower bound of another mesh than the upper bound")
     lo, hi = -float(lower.J), upper.Pi
     gap = hi - lo
     local = lower.local
-    element = upper.element_energy + local.element_energy - np.einsum("ek,ek->e", local.element_stress, upper.strain)
-    cf = lower.field.contact_facets
-    d = upper.points.shape[1]
-    w = upper.u[cf, d - 1] - upper.V  # v_d - V at the facet vertices
-    measure = facet_measure(upper.points[cf])
-    facet = measure * np.einsum("fa,ab,fb->f", lower.field.lam, mass_matrix(d - 1), w) + local.facet_psi_work
-    err = float(np.sqrt(2.0 * max(gap, 0.0)))
+    with np.errstate(all="ignore"):  # a non-finite side is not certified (its message says why) and is caught below
+        element = upper.element_energy + local.element_energy - np.einsum("ek,ek->e", local.element_stress,
+                                                                          upper.strain)
+        cf = lower.field.contact_facets
+        d = upper.points.shape[1]
+        w = upper.u[cf, d - 1] - upper.V  # v_d - V at the facet vertices
+        measure = facet_measure(upper.points[cf])
+        facet = measure * np.einsum("fa,ab,fb->f", lower.field.lam, mass_matrix(d - 1), w) + local.facet_psi_work
+        ordered = bracket_holds(lo, hi)
+        # a gap below 0 within round-off is 0; an inverted bracket has no error bound
+        err = float(np.sqrt(2.0 * max(gap, 0.0))) if ordered else math.nan
+        rel = float(gap / abs(hi)) if hi != 0 else np.inf
+    if not ordered:
+        warnings.warn(f"the energy bracket is inverted or not finite (lower {lo:.8g} > upper {hi:.8g}): not certified")
     return Bounds(
         energy_lower=lo,
         energy_upper=hi,
-        energy_gap_rel=float(gap / abs(hi)) if hi != 0 else np.inf,
+        energy_gap_rel=rel,
         stress_error_bound=err,
         stress_error_bound_rel=err / upper.stress_norm if upper.stress_norm > 0 else np.inf,
-        bounds_certified=bool(upper.certified and lower.certified),
+        bounds_certified=bool(upper.certified and lower.certified and ordered),
         element_gap=element,
         facet_gap=facet,
         contact_facets=cf,
     )
+
+
+def bracket_holds(lower: float, upper: float) -> bool:
+    """Whether ``lower <= upper`` is a bracket: both finite, in order to the round-off of the
+    bounds themselves (:data:`~elastoplast.bounds.upper.GAP_FLOOR` of their magnitude). Two
+    valid bounds always are; an inverted pair proves that one of them is not a bound."""
+    if not (math.isfinite(lower) and math.isfinite(upper)):
+        return False
+    return lower <= upper + GAP_FLOOR * max(abs(lower), abs(upper))
 
 
 def energy_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
@@ -124,11 +147,14 @@ def u_bracket(disc: Discretization, delta: float, solve_bounds_at: Callable[[flo
 
         U(F) <= (hi(F) - lo(F + delta)) / delta,   U(F) >= (lo(F - delta) - hi(F)) / delta.
     """
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
     F = disc.force
+    delta = real_number("delta", delta)
     if not 0 < delta < F:
-        from elastoplast.errors import InputError
-
         raise InputError("delta", f"must lie in (0, F) = (0, {F:g}), got {delta!r}")
+    if not callable(solve_bounds_at):
+        raise InputError("solve_bounds_at", "expected a function F -> (lower, upper) such as bounds_at(disc), "
+                                            f"got {type(solve_bounds_at).__name__}")
     lo_m, _ = solve_bounds_at(F - delta)
     _, hi_0 = solve_bounds_at(F)
     lo_p, _ = solve_bounds_at(F + delta)
@@ -155,6 +181,10 @@ def choose_delta(force: float, gap: float, dU_dF: float) -> float:
     ``2 sqrt(2 gap U')``. ``U'`` is estimated from discrete solutions
     (:func:`displacement_slope`). δ is kept below ``F / 2``.
     """
+    force = real_number("force", force)
+    if not (math.isfinite(force) and force > 0):
+        raise InputError("force", f"must be a finite number > 0, got {force!r}")
+    gap, dU_dF = real_number("gap", gap), real_number("dU_dF", dU_dF)
     if not (gap > 0 and dU_dF > 0):
         return 0.5 * force
     return float(min(np.sqrt(2.0 * gap / dU_dF), 0.5 * force))
@@ -231,7 +261,7 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
 
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     if solution is not None:
-        expect(solution, Solution, "solution", "ep.solve(disc, method)")
+        check_solution(disc, solution, "solution", reads=("u",))
     lower_options = LowerBoundOptions.of(lower_options, "lower_options")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -286,8 +316,16 @@ def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
                 raise
             delta_plus /= 4.0
     plus_lower = plus.lower if plus is not None else -math.inf
-    U_lo, U_hi = u_secants(minus.lower, b.energy_upper, plus_lower, delta, delta_plus)
-    certified = minus.certified and plus is not None and plus.certified
+    with np.errstate(all="ignore"):
+        U_lo, U_hi = u_secants(minus.lower, b.energy_upper, plus_lower, delta, delta_plus)
+    # the secants hold for valid bounds, so they are in order; their round-off is the bounds' own over delta
+    energies = max(abs(minus.lower), abs(b.energy_upper), abs(plus_lower))
+    ordered = math.isfinite(U_lo) and math.isfinite(U_hi) and (
+        U_lo <= U_hi + GAP_FLOOR * energies * (1.0 / delta + 1.0 / delta_plus))
+    if plus is not None and not ordered:
+        warnings.warn(f"the U bracket is inverted or not finite (U_lower {U_lo:.6g} > U_upper {U_hi:.6g}): not "
+                      "certified")
+    certified = minus.certified and plus is not None and plus.certified and ordered
     return U_lo, U_hi, (delta, delta_plus), certified
 
 

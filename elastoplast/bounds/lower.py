@@ -72,12 +72,8 @@ from elastoplast.bounds.static import (
 )
 from elastoplast.certificate.solution import Status
 from elastoplast.errors import InputError, expect
-from elastoplast.fem.discretize import (
-    Discretization,
-    Units,
-    element_geometry,
-    nondimensionalize,
-)
+from elastoplast.fem.discretize import Discretization, Units, nondimensionalize
+from elastoplast.fem.assembly import element_geometry
 from elastoplast.fem.material import von_mises
 from elastoplast.mesh.topology import FacetTopology, facet_measure
 from elastoplast.options import TIGHTEST_TOL, SolverOptions, option
@@ -334,8 +330,8 @@ def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, lim
     if disc.n_elements > largest:
         raise InputError("mesh", f"{disc.n_elements:,} elements: the equilibrium-element lower bound with {solver} is "
                                  f"limited to {largest:,} in {disc.dim}D (its cost grows fast, see "
-                                 "benchmarks/bounds/solvers.md); coarsen the mesh, let 'elastoplast adapt' place the elements, "
-                                 "or raise the limit with the lower bound's max_elements option")
+                                 "benchmarks/bounds/solvers.md); coarsen the mesh, or let 'elastoplast adapt' place "
+                                 "the elements (from Python, LowerBoundOptions(max_elements=...) raises the limit)")
     from elastoplast.limits import check_memory
 
     check_memory(int(factor * lower_bound_bytes(disc.dim, disc.n_elements)), "mesh",

@@ -25,7 +25,9 @@ def project_affine(A: sp.csc_matrix, b: np.ndarray, x: np.ndarray, max_refine: i
     so the limit is the minimum-norm correction even when rows are redundant
     (K singular without eps); each sweep shrinks the residual by
     ``eps / (sigma^2 + eps)`` for every nonzero singular value sigma of A.
-    Returns ``(x, max |b - A x| / max_i sum_j |A_ij x_j|)`` after the last sweep.
+    Returns ``(x, max |b - A x| / max_i sum_j |A_ij x_j|)`` after the last sweep. A
+    solver's answer out of range (overflowing, not finite) gives a residual that is not
+    finite, with no floating-point warning: the static certificate refuses it and says so.
     """
     from elastoplast.linalg.direct import factorize_spd
 
@@ -37,15 +39,17 @@ def project_affine(A: sp.csc_matrix, b: np.ndarray, x: np.ndarray, max_refine: i
     solve = factorize_spd((As @ As.T + GRAM_REGULARISATION * sp.eye(A.shape[0])).tocsc())
     x = x.copy()
     last = np.inf
-    for _ in range(max_refine):
-        r = bs - As @ x
-        size = np.abs(r).max(initial=0.0)
-        if size >= 0.5 * last:
-            break
-        x += As.T @ solve(r)
-        last = size
-    scale = max((abs(As) @ np.abs(x)).max(initial=0.0), np.finfo(float).tiny)
-    return x, float(np.abs(bs - As @ x).max(initial=0.0) / scale)
+    with np.errstate(all="ignore"):
+        for _ in range(max_refine):
+            r = bs - As @ x
+            size = np.abs(r).max(initial=0.0)
+            if not size < 0.5 * last:  # no progress, or not finite
+                break
+            x += As.T @ solve(r)
+            last = size
+        scale = max((abs(As) @ np.abs(x)).max(initial=0.0), np.finfo(float).tiny)
+        residual = float(np.abs(bs - As @ x).max(initial=0.0) / scale)
+    return x, residual if np.isfinite(residual) else np.inf
 
 
 def repair_static(prog: Program, x: np.ndarray, max_rounds: int = 10) -> tuple[np.ndarray, float, int]:

@@ -18,6 +18,7 @@ from elastoplast.fem.assembly import STRAIN_ROWS, element_geometry
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import n_components, von_mises
 from elastoplast.mesh.topology import FacetTopology, facet_measure, outward_facet_normals
+from elastoplast.errors import expect
 
 #: every residual of :func:`certify_static` must be at most this (relative to its stated scale)
 CERTIFY_TOL = 1e-12
@@ -102,6 +103,15 @@ class StaticField:
     force: float
 
 
+def check_static_field(disc: Discretization, field: StaticField) -> None:
+    """An InputError unless ``field`` is a :class:`StaticField` of ``disc``'s mesh."""
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    expect(field, StaticField, "field", "ep.solve_lower_bound(disc).field")
+    if np.shape(field.tau) != (disc.n_elements, disc.dim + 1, disc.k):
+        raise InputError("field", f"is the field of another mesh: tau has shape {np.shape(field.tau)}, this "
+                                  f"discretisation's ({disc.n_elements}, {disc.dim + 1}, {disc.k})")
+
+
 @dataclass(frozen=True)
 class LocalTerms:
     """Per-element and per-contact-facet pieces of J and of the weak-duality gap.
@@ -143,6 +153,7 @@ def local_terms(disc: Discretization, field: StaticField, psi: PsiWeights | None
 def dual_energy(disc: Discretization, field: StaticField, psi: PsiWeights | None = None) -> float:
     """``J = 1/2 int (A tau:tau + eta^2/H) + int lam psi_over``, integrated exactly
     (eta is ignored when H = 0; :func:`certify_static` requires it to vanish then)."""
+    check_static_field(disc, field)
     t = local_terms(disc, field, psi)
     return float(t.element_energy.sum() + t.facet_psi_work.sum())
 
@@ -228,6 +239,7 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
     amount, far below the discretisation gaps that the bounds measure. A solver's
     raw output (residuals at its tolerance, 1e-10..1e-6) fails.
     """
+    check_static_field(disc, field)
     mesh, m = disc.mesh, disc.material
     topo = disc.facet_topology
     tau = np.asarray(field.tau, dtype=float)

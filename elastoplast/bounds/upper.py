@@ -42,6 +42,9 @@ import numpy as np
 from elastoplast.certificate.kkt import energy_norm_sq, gaps
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import Material, return_mapping
+from elastoplast.certificate.kkt import real_number, shaped
+from elastoplast.errors import InputError, expect
+from elastoplast.options import check_array
 
 #: most pieces per facet edge for an expression obstacle (1, 4, 16, ... up to this; 2D: that many
 #: pieces per facet, 3D: its square)
@@ -61,6 +64,10 @@ def hencky_energy_density(material: Material, eps: np.ndarray) -> np.ndarray:
     The squared distance is ``A(Cε - σ):(Cε - σ) + ξ²/H`` (ξ = 0 when H = 0); with the
     closed form of R it equals ``(3 mu + H) Δκ²``.
     """
+    expect(material, Material, "material", "ep.make_material(E, nu, yield_stress, hardening)")
+    eps = check_array("eps", eps)
+    if eps.ndim != 2 or eps.shape[1] not in (4, 6):
+        raise InputError("eps", f"expected Mandel strains (n, 4) in 2D or (n, 6) in 3D, got shape {eps.shape}")
     dim = 2 if eps.shape[-1] == 4 else 3
     sigma, xi, _ = return_mapping(material, eps)
     Ceps = eps @ material.stiffness(dim)
@@ -170,6 +177,8 @@ def penetration_bound(disc: Discretization, u: np.ndarray, U: float) -> Penetrat
 
     ``u``: nodal displacements ``(n_nodes, d)`` or the free-dof vector.
     """
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    U = real_number("U", U)
     u = _nodal(disc, u)
     d = disc.dim
     facets = contact_facets(disc)
@@ -196,11 +205,11 @@ def penetration_bound(disc: Discretization, u: np.ndarray, U: float) -> Penetrat
                        certified=certified, method=method)
 
 
-def _nodal(disc: Discretization, u: np.ndarray) -> np.ndarray:
-    u = np.asarray(u, dtype=float)
+def _nodal(disc: Discretization, u: np.ndarray, field: str = "u") -> np.ndarray:
+    u = check_array(field, u)
     if u.ndim == 1 and u.size == disc.n_free:
         return disc.full_displacement(u)
-    return u.reshape(disc.mesh.n_nodes, disc.dim)
+    return shaped(u, (disc.mesh.n_nodes, disc.dim), field)
 
 
 # ----------------------------------------------------------------------------
@@ -270,6 +279,23 @@ def upper_bound(disc: Discretization, candidate, correction: str = "best") -> Up
     penetration left is taken off V): nothing but the candidate's displacements
     enter, so any candidate gives a valid bound.
     """
+    from elastoplast.certificate.kkt import real_number, shaped
+    from elastoplast.certificate.solution import Solution, check_solution
+    from elastoplast.errors import InputError, expect
+    from elastoplast.options import check_array
+
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    if isinstance(candidate, Solution):
+        check_solution(disc, candidate, "candidate", reads=("u",))
+        real_number("candidate.U", candidate.U)
+    elif isinstance(candidate, (tuple, list)) and len(candidate) == 2:
+        u_given = check_array("candidate.u", candidate[0])
+        if not (u_given.ndim == 1 and u_given.size == disc.n_free):  # else nodal, in any layout
+            shaped(u_given, (disc.mesh.n_nodes, disc.dim), "candidate.u")
+        real_number("candidate.U", candidate[1])
+    else:
+        raise InputError("candidate", f"expected a Solution or a pair (u, U), u nodal ({disc.mesh.n_nodes}, "
+                                      f"{disc.dim}) or on the {disc.n_free} free dofs; got {type(candidate).__name__}")
     if correction not in ("best", "shift", "lift"):
         from elastoplast.errors import InputError
 
@@ -291,8 +317,9 @@ def upper_bound(disc: Discretization, candidate, correction: str = "best") -> Up
     def lifted(shift: float) -> tuple[np.ndarray, np.ndarray, float]:
         v = u.copy()
         v[:, d - 1] += np.maximum(p - shift, 0.0)
-        energy = disc.volumes * hencky_energy_density(m, disc.strain(disc.free_displacement(v)))
-        return v, energy, float(energy.sum() - F * (U - shift))
+        with np.errstate(all="ignore"):  # energies out of range: not finite, and not certified below
+            energy = disc.volumes * hencky_energy_density(m, disc.strain(disc.free_displacement(v)))
+            return v, energy, float(energy.sum() - F * (U - shift))
 
     s = min(shifts, key=lambda t: lifted(t)[2])
     v, energy, _ = lifted(s)
@@ -303,11 +330,13 @@ def upper_bound(disc: Discretization, candidate, correction: str = "best") -> Up
     lift = float(np.maximum(p - s, 0.0).max(initial=0.0))
     notes = [f"gap between nodes: {pen.method}", f"largest penetration {pen.max_penetration:.3e}",
              f"V lowered by {U - V:.3e}, contact nodes lifted by up to {lift:.3e} ({correction})"]
-    finite = bool(np.all(np.isfinite(v)) and np.isfinite(V))
+    with np.errstate(all="ignore"):  # an energy out of range is not finite: not certified, said below
+        Pi = float(energy.sum() - F * V)
+    finite = bool(np.all(np.isfinite(v)) and np.isfinite(V) and np.isfinite(Pi))
     if not finite:
-        notes.append("the candidate is not finite")
+        notes.append("the candidate or its energy is not finite")
     return UpperBound(
-        Pi=float(energy.sum() - F * V),
+        Pi=Pi,
         V=float(V),
         U=U,
         penetration=pen.max_penetration,

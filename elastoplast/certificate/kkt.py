@@ -9,12 +9,16 @@ same check applies to every solver.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import return_mapping
+from elastoplast.options import check_array
+from elastoplast.errors import short_repr
 
 
 #: relative round-off of a computed nodal force: 64 machine epsilons of the sum of the
@@ -115,14 +119,30 @@ def abs_transpose_product(B, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def _shaped(a, shape: tuple[int, ...], name: str) -> np.ndarray:
-    """``a`` as a float array of ``shape`` (the same number of entries in any layout)."""
-    from elastoplast.errors import InputError
-
-    arr = np.asarray(a, dtype=float)
-    if arr.size != int(np.prod(shape)):
-        raise InputError(name, f"expected {int(np.prod(shape))} values {shape}, got {arr.size} {arr.shape}")
+def shaped(a, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``a`` as a float array of ``shape`` (the same number of entries in any layout), or
+    an :class:`~elastoplast.errors.InputError` naming ``name`` and the shape expected:
+    for anything that is not numbers (strings, ``None``, objects) and for a wrong size.
+    NaN and infinite entries pass: the certificate of such a candidate is NaN, never small."""
+    size = int(np.prod(shape))
+    arr = check_array(name, a)
+    if arr.size != size:
+        raise InputError(name, f"expected {size} values {shape}, got {arr.size} {arr.shape}")
     return arr.reshape(shape)
+
+
+def real_number(name: str, value) -> float:
+    """``value`` as a float: a real number (a numpy scalar, a 0-d array) but not a
+    boolean or a string, else an InputError naming ``name``. NaN and infinity pass,
+    as in :func:`shaped`."""
+    if isinstance(value, np.ndarray) and value.shape == () and value.dtype.kind in "iuf":
+        value = value.item()
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise InputError(name, f"expected a number, got {short_repr(value)}")
+    try:
+        return float(value)
+    except OverflowError:  # an integer beyond any float
+        raise InputError(name, f"expected a number within the float range, got {short_repr(value)}") from None
 
 
 def propagated(disc: Discretization, u_free: np.ndarray) -> np.ndarray:
@@ -149,11 +169,24 @@ def certify(
     """KKT residuals of the candidate; ``u`` is nodal ``(n_nodes, d)``.
 
     The candidate's origin does not matter: no solver output other than these
-    arrays is used.
+    arrays is used. Arguments of the wrong type or shape are refused with an
+    :class:`~elastoplast.errors.InputError` naming them (:func:`shaped`,
+    :func:`real_number`); non-finite values are admitted and give NaN (or infinite)
+    residuals, without floating-point warnings.
     """
-    sigma = _shaped(sigma, (disc.n_elements, disc.k), "sigma")
-    xi = _shaped(xi, (disc.n_elements,), "xi")
-    u_all = _shaped(u, (disc.mesh.n_nodes, disc.dim), "u").reshape(-1)
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    sigma = shaped(sigma, (disc.n_elements, disc.k), "sigma")
+    xi = shaped(xi, (disc.n_elements,), "xi")
+    u_all = shaped(u, (disc.mesh.n_nodes, disc.dim), "u").reshape(-1)
+    U = real_number("U", U)
+    lam = None if contact_force is None else shaped(contact_force, (disc.n_contact,), "contact_force")
+    with np.errstate(all="ignore"):  # the residuals say it (NaN is never small), no warning on top
+        return _residuals(disc, sigma, xi, u_all, U, lam)
+
+
+def _residuals(disc: Discretization, sigma: np.ndarray, xi: np.ndarray, u_all: np.ndarray, U: float,
+               lam: np.ndarray | None) -> KKTResiduals:
+    """:func:`certify` on checked arguments."""
     u_free = u_all[disc.free]
     F = disc.force
 
@@ -165,7 +198,7 @@ def certify(
     constitutive_max = np.sqrt(diff.max() / max(ref.max(), tiny))
 
     r = disc.internal_force(sigma)
-    lam = disc.N @ r if contact_force is None else _shaped(contact_force, (disc.n_contact,), "contact_force")
+    lam = disc.N @ r if lam is None else lam
     magnitude = abs_transpose_product(disc.B, np.abs(sigma * disc.volumes[:, None]).ravel())
     res = r - disc.N.T @ lam
     equilibrium = np.linalg.norm(res) / max(np.linalg.norm(magnitude), np.finfo(float).tiny)

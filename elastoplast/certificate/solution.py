@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from elastoplast.certificate.kkt import KKTResiduals, certify, contact_forces, energy_norm_sq, gaps
+from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
+from elastoplast.fem.locking import SMALL_STRAIN_LIMIT
 from elastoplast.fem.material import return_mapping, von_mises
+from elastoplast.certificate.kkt import real_number, shaped
+from elastoplast.errors import short_repr
 
 #: contact nodes whose force exceeds this share of the largest one count as active
 ACTIVE_FORCE_SHARE = 1e-4
@@ -138,10 +142,16 @@ def make_solution(
 
     ``contact_force`` defaults to the forces implied by ``sigma``.
     """
-    sigma = np.asarray(sigma, dtype=float).reshape(disc.n_elements, disc.k)
-    xi = np.asarray(xi, dtype=float).reshape(disc.n_elements)
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    if not isinstance(status, Status):
+        raise InputError("status", f"expected a Status (e.g. ep.Status.CONVERGED), got {short_repr(status)}")
+    sigma = shaped(sigma, (disc.n_elements, disc.k), "sigma")
+    xi = shaped(xi, (disc.n_elements,), "xi")
+    u_free = shaped(u_free, (disc.n_free,), "u_free")
+    U = real_number("U", U)
     u = disc.full_displacement(u_free)
-    lam = contact_forces(disc, sigma) if contact_force is None else np.asarray(contact_force, dtype=float)
+    lam = contact_forces(disc, sigma) if contact_force is None else shaped(contact_force, (disc.n_contact,),
+                                                                           "contact_force")
     kkt = certify(disc, sigma, xi, u, U, contact_force=lam)
     vS = value_stress_form(disc, sigma, xi, lam)
     vD = value_displacement_form(disc, u_free, U)
@@ -154,6 +164,10 @@ def make_solution(
     if status is Status.CONVERGED and not (finite and np.isfinite(kkt.worst)):
         status = Status.FAILED
         message = f"{message}; the answer holds non-finite values" if message else "the answer holds non-finite values"
+    if status is Status.CONVERGED:
+        beyond = small_strain_note(disc, u_free)
+        if beyond:
+            status, message = Status.FAILED, f"{message}; {beyond}" if message else beyond
     return Solution(
         method=method,
         status=status,
@@ -176,8 +190,81 @@ def make_solution(
     )
 
 
+def solution_shapes(disc: Discretization) -> dict[str, tuple[int, ...]]:
+    """The shape of each array of a :class:`Solution` of ``disc``."""
+    n_el, n_c = disc.n_elements, disc.n_contact
+    return {"u": (disc.mesh.n_nodes, disc.dim), "sigma": (n_el, disc.k), "xi": (n_el,), "plastic": (n_el,),
+            "contact_force": (n_c,), "contact_pressure": (n_c,), "active": (n_c,)}
+
+
+def check_solution(disc: Discretization, sol: Any, field: str, *, reads: tuple[str, ...] | None = None,
+                   start: bool = False, advice: str = "") -> Solution:
+    """``sol`` if it is a :class:`Solution` of ``disc``'s mesh, else an
+    :class:`~elastoplast.errors.InputError` naming ``field``: the check of every
+    function that takes a solution (a warm start, a summary, a bound's candidate).
+
+    ``reads``: the arrays the caller uses (all of :func:`solution_shapes` by
+    default; Newton's warm start reads ``u`` only, so a solution whose ``u`` was
+    interpolated onto this mesh serves); ``start``: a solver starts from it, so
+    those arrays and ``U`` must be finite (a diverged answer is no start);
+    ``advice``: how to get a fitting one."""
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    expect(sol, Solution, field, "ep.solve(disc, method)")
+    shapes = solution_shapes(disc)
+    names = tuple(shapes) if reads is None else reads
+    for name in names:
+        shape = np.shape(getattr(sol, name))
+        if shape != shapes[name]:
+            raise InputError(field, f"is a Solution of another mesh: its {name} has shape {shape}, this "
+                                    f"discretisation's {shapes[name]} ({disc.mesh.n_nodes} nodes, "
+                                    f"{disc.n_elements} elements, {disc.n_contact} contact nodes)"
+                                    + (f"; {advice}" if advice else ""))
+    if start:
+        for name in names + ("U",):
+            value = getattr(sol, name)
+            if not (np.asarray(value).dtype.kind in "iuf" and np.all(np.isfinite(value))):
+                raise InputError(field, f"its {name} holds NaN or infinite values: no start (give a finite "
+                                        "solution, or none to start from zero)")
+    return sol
+
+
+def largest_strain(disc: Discretization, u_free: np.ndarray) -> tuple[float, int]:
+    """``(|eps|, element)``: the largest strain of a displacement, the Frobenius norm of
+    each element's strain tensor (the Euclidean norm of its Mandel vector)."""
+    norms = np.linalg.norm(disc.strain(np.asarray(u_free, dtype=float)), axis=1)
+    i = int(np.argmax(norms)) if norms.size else 0
+    return (float(norms[i]) if norms.size else 0.0), i
+
+
+def small_strain_note(disc: Discretization, u_free: np.ndarray) -> str:
+    """Why an answer is outside the small-strain model (its largest strain above
+    :data:`~elastoplast.fem.locking.SMALL_STRAIN_LIMIT`), or ``""`` when it is not."""
+    strain, element = largest_strain(disc, u_free)
+    if not strain > SMALL_STRAIN_LIMIT:
+        return ""
+    return (f"the answer leaves the small-strain model: its strain reaches |eps| = {strain:.3g} (element {element}), "
+            f"above {SMALL_STRAIN_LIMIT:g}, so it is no reference; the force needs more hardening than H = "
+            f"{disc.material.hardening:g} to be carried within small strains (or lies above the limit load)")
+
+
+def within_small_strains(disc: Discretization, sol: Solution) -> Solution:
+    """``sol``, with a CONVERGED status turned FAILED (and the reason appended to its
+    message) when its strains leave the small-strain model (:func:`small_strain_note`).
+    :func:`make_solution` applies it to every candidate; the registry applies it again
+    to what a method returns, whatever status the method settled on afterwards."""
+    if sol.status is not Status.CONVERGED:
+        return sol
+    beyond = small_strain_note(disc, disc.free_displacement(sol.u))
+    if not beyond:
+        return sol
+    if beyond in sol.message:  # said by make_solution before the method settled on CONVERGED again
+        return replace(sol, status=Status.FAILED)
+    return replace(sol, status=Status.FAILED, message=f"{sol.message}; {beyond}" if sol.message else beyond)
+
+
 def summary(disc: Discretization, sol: Solution) -> dict[str, Any]:
     """The JSON summary of a solution (keys documented in the README)."""
+    check_solution(disc, sol, "sol")
     vol = disc.volumes
     return {
         "method": sol.method,

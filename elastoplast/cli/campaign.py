@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import copy
 import itertools
+import json
 import logging
 import os
 import re
@@ -52,7 +53,8 @@ from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from elastoplast.errors import InputError
+from elastoplast.errors import FIELD_WIDTH, InputError, elide
+from elastoplast.io.output import path_errors
 from elastoplast.io.store import (
     ERROR,
     ResolvedInput,
@@ -62,6 +64,7 @@ from elastoplast.io.store import (
     rebuild_problem,
     resolve,
 )
+from elastoplast.limits import as_path
 from elastoplast.problem.definition import SECTIONS, problem_from_dict, read_toml
 from elastoplast.solvers.registry import check_solvable, method_options, solver_settings
 
@@ -92,22 +95,29 @@ class Campaign:
 
 
 def _axes(sweep: Any) -> dict[str, list]:
-    """Flatten ``[sweep]`` into ``{dotted key: values}``; ``method`` means ``solver.method``."""
+    """Flatten ``[sweep]`` into ``{dotted key: values}``; ``method`` means ``solver.method``.
+    One axis spelled twice (a quoted key and a dotted one, ``"material.E"`` and
+    ``material.E``; ``method`` and ``solver.method``) is refused: TOML keeps both, and
+    one of them would vanish."""
     if not isinstance(sweep, Mapping):
         raise InputError("sweep", f"must be a table of axes, got {sweep!r}")
     axes: dict[str, list] = {}
+    written: dict[str, str] = {}  # axis -> how the file spells it
 
-    def walk(table: Mapping, prefix: str) -> None:
+    def walk(table: Mapping, prefix: str, spelled: str) -> None:
         for key, val in table.items():
             path = f"{prefix}{key}"
+            spelling = spelled + (key if _BARE_KEY.fullmatch(key) else json.dumps(key))
             if isinstance(val, Mapping):
-                walk(val, f"{path}.")
-            else:
-                axes["solver.method" if path == "method" else path] = val
+                walk(val, f"{path}.", f"{spelling}.")
+                continue
+            axis = "solver.method" if path == "method" else path
+            if axis in axes:
+                raise InputError(f"sweep.{axis}", f"given twice (as {written[axis]} and {spelling}); name each "
+                                                  "axis once")
+            axes[axis], written[axis] = val, spelling
 
-    walk(sweep, "")
-    if "method" in sweep and "solver" in sweep and "method" in sweep["solver"]:
-        raise InputError("sweep.method", "given twice (as method and solver.method)")
+    walk(sweep, "", "")
     for axis, values in axes.items():
         name = f"sweep.{axis}"
         head = axis.split(".")
@@ -121,6 +131,9 @@ def _axes(sweep: Any) -> dict[str, list]:
             raise InputError(name, "is an empty list (the campaign would have no case)")
     return axes
 
+
+#: a TOML key written without quotes
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 
 #: the sections of a case: a problem's, and ``[adapt]`` (an adaptive target, see :func:`adapt_settings`)
 CASE_SECTIONS = SECTIONS | {"adapt"}
@@ -158,10 +171,15 @@ def _set(data: dict, axis: str, value: Any) -> None:
 def _blame(exc: InputError, point: Mapping[str, Any]) -> InputError:
     """Re-raise a problem's complaint about a sweep point under the axis it concerns."""
     for axis, value in point.items():
-        if exc.field == axis or exc.field.startswith(axis + ".") or axis.startswith(exc.field + "."):
+        named = exc.field in (axis, elide(axis, FIELD_WIDTH))  # a very long axis name comes back cut
+        if named or exc.field.startswith(axis + ".") or axis.startswith(exc.field + "."):
             return InputError(f"sweep.{axis}", f"value {value!r}: {exc.field}: {exc.message}")
-    where = ", ".join(f"{a} = {v!r}" for a, v in point.items())
-    return InputError("sweep", f"the point ({where}): {exc.field}: {exc.message}")
+    where = ", ".join(f"{a} = {v!r}" for a, v in point.items())  # not an axis: the base problem's own field
+    return InputError(exc.field, f"{exc.message} (at the sweep point {where})" if where else exc.message)
+
+
+#: the longest campaign name (it heads every line the command prints)
+MAX_NAME = 200
 
 
 def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name: str = "campaign") -> Campaign:
@@ -182,14 +200,15 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
     head = data.get("campaign", {})
     if not isinstance(head, Mapping) or set(head) - {"name", "problem"}:
         raise InputError("campaign", f"allowed keys are 'name' and 'problem', got {head!r}")
-    name = str(head.get("name", name))
+    name = head.get("name", name)
+    if not isinstance(name, str) or not 0 < len(name) <= MAX_NAME:
+        got = f"{len(name)} characters" if isinstance(name, str) else type(name).__name__
+        raise InputError("campaign.name", f"must be a string of 1 to {MAX_NAME} characters, got {got}")
     base: dict = {}
-    problem_dir = base_dir
     if "problem" in head:
-        path = base_dir / str(head["problem"])
-        if not path.is_file():
-            raise InputError("campaign.problem", f"file not found: {path}")
-        base, problem_dir = read_toml(path, field="campaign.problem"), path.parent
+        problem = as_path(head["problem"], "campaign.problem", "problem file")
+        base = read_toml(base_dir / problem, field="campaign.problem")
+        _rebase_mesh_file(base, problem.parent)
     for section in CASE_SECTIONS & set(data):
         if not isinstance(data[section], Mapping):
             raise InputError(section, f"must be a table, got {data[section]!r}")
@@ -211,7 +230,7 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
             try:
                 method, options = solver_settings(case_data.pop("solver", {}))
                 target = adapt_settings(case_data.pop("adapt", None), method)
-                problem = problem_from_dict(case_data, problem_dir)
+                problem = problem_from_dict(case_data, base_dir)
                 if target is not None:
                     from elastoplast.adapt.loop import check_adaptable
 
@@ -240,11 +259,18 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
                     n_duplicates=n_points - len(cases))
 
 
+def _rebase_mesh_file(base: dict, folder: Path) -> None:
+    """Make the base problem's relative ``mesh.file`` relative to the campaign's folder
+    (it is written relative to the problem file in ``folder``); an inline ``[mesh] file``
+    and a ``mesh.file`` axis are relative to the campaign file, where they are written."""
+    mesh = base.get("mesh")
+    if isinstance(mesh, dict) and isinstance(mesh.get("file"), str) and not Path(mesh["file"]).is_absolute():
+        mesh["file"] = str(folder / mesh["file"])
+
+
 def load_campaign(path: str | Path) -> Campaign:
     """Read and validate a campaign TOML file (see the module docstring)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("campaign", f"file not found: {path}")
+    path = as_path(path, "campaign", "campaign file")
     return campaign_from_dict(read_toml(path, field="campaign", what="campaign file"), path.parent, name=path.stem)
 
 
@@ -270,10 +296,11 @@ def check_cluster(scheduler: str | None, n_workers: int | None) -> None:
     """Refuse a scheduler address that cannot be one and a local cluster size
     that is not a positive number of processes this machine can hold."""
     if scheduler is not None:
-        port = scheduler.rsplit(":", 1)[-1].rstrip("/")
-        if (not isinstance(scheduler, str) or not _ADDRESS.match(scheduler.strip())
-                or (port.isdigit() and not 0 < int(port) < 65536)):
+        m = _ADDRESS.match(scheduler.strip()) if isinstance(scheduler, str) else None
+        if m is None or (m.group(4) and not 0 < int(m.group(4)[1:]) < 65536):
             raise InputError("scheduler", f"{scheduler!r} is not a scheduler address (e.g. tcp://127.0.0.1:8786)")
+        if not m.group(4) and m.group(2) in (None, "tcp", "tls"):
+            raise InputError("scheduler", f"{scheduler!r} names no port (e.g. tcp://{m.group(3)}:8786)")
         if n_workers is not None:
             raise InputError("workers", "applies to the local cluster only, not with a scheduler address")
     if n_workers is not None:
@@ -308,7 +335,7 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> I
         _probe(scheduler)
         try:
             client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
+        except (OSError, TimeoutError, ValueError) as exc:  # ValueError: an address distributed cannot parse
             raise InputError("scheduler", f"cannot connect to {scheduler}: {exc}") from None
         with client:
             yield client
@@ -478,8 +505,9 @@ def run_campaign(campaign: Campaign, out: str | Path, *, scheduler: str | None =
     """
     if client is None:
         check_cluster(scheduler, n_workers)
-    store = Store(out)
-    created = not store.path.exists()
+    with path_errors(out, "out"):  # a name too long for the file system
+        store = Store(out)
+        created = not store.path.exists()
     try:
         return _run(campaign, store, scheduler, client, n_workers, progress, retry_failed)
     except InputError:  # e.g. no scheduler at the address: leave no empty store behind

@@ -139,16 +139,11 @@ class Discretization:
         return np.linalg.norm(xp - np.asarray(self.problem.obstacle.center), axis=1)
 
     def with_force(self, force: float) -> "Discretization":
-        """The same operators for another load (nothing is rebuilt); ``force`` finite and > 0."""
+        """The same operators for another load (nothing is rebuilt); ``force`` is
+        checked as the problem file's ``load.force`` (:meth:`Problem.with_force`)."""
         from dataclasses import replace
 
-        try:
-            value = float(force)
-        except (TypeError, ValueError, OverflowError):
-            value = float("nan")
-        if not (np.isfinite(value) and value > 0):
-            raise InputError("load.force", f"must be a finite number > 0, got {force!r}")
-        out = replace(self, problem=replace(self.problem, force=value))
+        out = replace(self, problem=self.problem.with_force(force))
         if "facet_topology" in self.__dict__:  # same mesh and groups
             out.__dict__["facet_topology"] = self.facet_topology
         return out
@@ -368,6 +363,9 @@ def reference_units(disc: Discretization) -> Units:
 
 
 SCALE_RANGE = (1e-100, 1e100)
+#: a hardening below this share of E is zero to every solver (the working units divide by E;
+#: 1/H enters the bounds), but not to the refusals of perfect plasticity: refused, use 0
+MIN_HARDENING_OVER_E = 1e-12
 
 
 def check_scales(disc: Discretization) -> None:
@@ -375,9 +373,15 @@ def check_scales(disc: Discretization) -> None:
     the yield stress ``sigma_y / S``, the strain scale ``S / E`` and the obstacle
     ``psi / displacement`` must lie within ``SCALE_RANGE`` (squares then stay finite
     doubles). Beyond it (a force of 1e-300 or 1e300, E = 1e300 against a yield stress
-    of 1e3) the scaled data overflow and the solvers return nan."""
+    of 1e3) the scaled data overflow and the solvers return nan. A hardening
+    ``0 < H < MIN_HARDENING_OVER_E * E`` is refused too: it is perfect plasticity to the
+    arithmetic (1/H of 1e300 in the bounds' programs) while escaping what H = 0 is
+    checked for."""
     lo, hi = SCALE_RANGE
     m = disc.material
+    if 0 < m.hardening < MIN_HARDENING_OVER_E * m.E:
+        raise InputError("material.hardening", f"{m.hardening:g} is numerically zero against E = {m.E:g} (below "
+                                               f"{MIN_HARDENING_OVER_E:g} E): use 0 for perfect plasticity")
     with np.errstate(all="ignore"):
         u = reference_units(disc)
         yield_strain = m.yield_stress / m.E

@@ -1,7 +1,11 @@
-"""Perfect plasticity (H = 0) on meshes that lock: P1 elements whose divergence-free fields are too few.
+"""Perfect plasticity (H = 0), and hardening too small for the load, on meshes that lock: P1 elements whose
+divergence-free fields are too few.
 
 A mesh locks when the incompressible plastic flow it must carry has no P1 representative; the solvers refuse
-H = 0 there (:func:`check_perfect_plasticity`)."""
+H = 0 there (:func:`check_perfect_plasticity`), and a hardening that cannot carry the force within small strains
+(:func:`check_hardening_carries_load`): either way the continuum would flow where the locking elements do not,
+so the answer is no reference. :data:`SMALL_STRAIN_LIMIT` is the strain beyond which no answer is called
+converged, on any mesh (:mod:`elastoplast.certificate.solution`)."""
 
 from __future__ import annotations
 
@@ -11,6 +15,17 @@ from elastoplast.errors import InputError
 from elastoplast.mesh.topology import boundary_facets, unique_rows
 
 CROSSED_TOLERANCE = 1e-6  # |sin| of the angle between the two halves of a crossing line
+
+#: the largest strain |eps| (the Frobenius norm, element by element) of an answer of the small-strain model:
+#: beyond it the model's own error, of the order of the strain, is no longer small (the shipped problems
+#: reach 0.013, the test suite's 0.025); an answer above it is not called converged
+SMALL_STRAIN_LIMIT = 0.1
+
+#: the largest mean contact pressure, in flow stresses, a body that flows plastically is taken to carry:
+#: twice the hardness of a rigid-plastic half-space (about 3: Prandtl's flat punch (2 + pi)/sqrt(3) = 2.97
+#: in plane strain; Tabor's 2.8 to 3 in 3D), the factor 2 for finite, clamped blocks (measured: the
+#: kinematic bounds of the shipped blocks 2.8 in 2D and 3.4 to 3.7 on coarse 3D meshes)
+BEARING_FACTOR = 6.0
 
 
 def crossed_centres(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
@@ -92,3 +107,46 @@ def check_perfect_plasticity(disc) -> None:
     raise InputError("material.hardening",
                      f"hardening = 0 (perfect plasticity) on this mesh gives no reference answer: {why}, so the "
                      f"discrete limit load lies far above the true one; {instead}")
+
+
+def check_hardening_carries_load(disc) -> None:
+    """Refuse, on a mesh whose P1 elements lock, a force its hardening cannot carry within
+    small strains: the neighbourhood of H = 0 that :func:`check_perfect_plasticity` refuses.
+
+    Within the strain :data:`SMALL_STRAIN_LIMIT` the hardening raises the flow stress to at
+    most ``sigma_y + H * SMALL_STRAIN_LIMIT``, and a body that flows carries a mean contact
+    pressure of at most :data:`BEARING_FACTOR` flow stresses. The mean pressure over the
+    declared contact zone, ``F / |Gamma_0|``, is at most the true one (the contact is no
+    larger than the zone); above ``BEARING_FACTOR (sigma_y + H SMALL_STRAIN_LIMIT)`` the
+    continuum's answer leaves small strains, while the locking elements carry the force
+    with small ones, so the answer is no reference. Meshes that do not lock are left to
+    the strain of their answer, which is then faithful. ``disc`` is a
+    :class:`Discretization` (its contact areas are needed).
+
+    This is an estimate that refuses only what lies far beyond the limit load. Between the
+    limit load and it, an answer on a locking mesh with little hardening is still too stiff
+    (measured, a flat punch at 1.2 times Prandtl's load on 20 x 10 squares: U = 0.027 with
+    two triangles per square for every H from E/1000 down to 1e-7 E, against 0.26 and 2400
+    on the crossed mesh); ``elastoplast bounds`` measures how far it is from the continuum.
+    """
+    m = disc.material
+    area = float(disc.contact_area.sum())
+    if m.hardening <= 0 or area <= 0:  # H = 0 is check_perfect_plasticity's
+        return
+    pressure = disc.force / area
+    flow = m.yield_stress + m.hardening * SMALL_STRAIN_LIMIT
+    if pressure <= BEARING_FACTOR * flow:
+        return
+    mesh = disc.mesh
+    if not np.any(locking_elements(mesh.points, mesh.cells)):
+        return
+    needed = (pressure / BEARING_FACTOR - m.yield_stress) / SMALL_STRAIN_LIMIT
+    where = "P1 tetrahedra" if mesh.dim == 3 else "triangles not in a crossed quadrilateral"
+    instead = "or a smaller force" + ("" if mesh.dim == 3 else ", or a crossed mesh (pattern = \"crossed\")")
+    raise InputError("material.hardening",
+                     f"hardening = {m.hardening:g} cannot carry force = {disc.force:g} within small strains on a mesh "
+                     f"that locks ({where}): the mean pressure over the contact zone, {pressure:.3g}, is "
+                     f"{pressure / flow:.3g} flow stresses sigma_y + {SMALL_STRAIN_LIMIT:g} H = {flow:.3g} (the most "
+                     f"hardening gives at a strain of {SMALL_STRAIN_LIMIT:g}), more than the {BEARING_FACTOR:g} a "
+                     "flowing body carries, so the continuum's answer leaves small strains where the locking "
+                     f"elements' does not: no reference; use a hardening of at least {needed:.3g}, {instead}")

@@ -19,6 +19,7 @@ from elastoplast.certificate.solution import Solution
 from elastoplast.errors import InputError
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import von_mises
+from elastoplast.limits import shown
 
 _VTK_CELL = {2: "triangle", 3: "tetra"}
 
@@ -101,38 +102,55 @@ LEGACY_OUTPUTS = frozenset({"summary.json", "solution.vtu", "convergence.png", "
 WRITE_TARGET_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS})
 
 
+@contextlib.contextmanager
+def path_errors(path: str | Path, field: str) -> Iterator[None]:
+    """Turn an error looking at a path the user gave (a name too long for the file
+    system, a NUL byte, a folder that may not be searched, an unknown ``~user``, no path
+    at all) into an
+    :class:`InputError` naming ``field``, the path shortened."""
+    try:
+        yield
+    except InputError:
+        raise
+    except (OSError, ValueError, TypeError, RuntimeError) as exc:
+        reason = getattr(exc, "strerror", None) or exc
+        raise InputError(field, f"cannot use {shown(path)}: {reason}") from None
+
+
 def check_output_dir(out_dir: str | Path, field: str = "out") -> Path:
     """Refuse, before any work, an output folder that cannot receive results.
 
     It may not exist yet (it is created, with its parents), or be empty, or
     hold an earlier elastoplast output (which the new run replaces whole). A
     file, a folder with other files, the working directory itself or one of
-    its ancestors, and a place where nothing can be written are refused.
+    its ancestors, a path the file system refuses (a name too long) and a place
+    where nothing can be written are refused.
     """
-    out = Path(out_dir).expanduser().absolute()
-    if out.exists() and not out.is_dir():
-        raise InputError(field, f"{out_dir} exists and is not a folder")
     cwd = Path.cwd().resolve()
-    if out.exists() and (out.resolve() == cwd or out.resolve() in cwd.parents):
-        raise InputError(field, f"{out_dir} is the working directory or contains it; name a subfolder")
-    if out.is_dir():
-        try:
-            names = sorted(p.name for p in out.iterdir())
-        except OSError as exc:
-            raise InputError(field, f"cannot read {out_dir}: {exc.strerror}") from None
-        if names and OUTPUT_MARKER not in names and not set(names) <= LEGACY_OUTPUTS:
-            shown = ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
-            raise InputError(field, f"{out_dir} holds files elastoplast did not write ({shown}); "
-                                    "name a new or empty folder")
-    ancestor = out.parent
-    while not ancestor.exists():
-        ancestor = ancestor.parent
-    if not ancestor.is_dir():
-        raise InputError(field, f"cannot create {out_dir}: {ancestor} is not a folder")
+    with path_errors(out_dir, field):
+        out = Path(out_dir).expanduser().absolute()
+        exists, is_dir = out.exists(), out.is_dir()
+        names = sorted(p.name for p in out.iterdir()) if is_dir else []
+        inside = exists and (out.resolve() == cwd or out.resolve() in cwd.parents)
+        ancestor = out.parent
+        while not ancestor.exists():
+            ancestor = ancestor.parent
+        ancestor_is_dir = ancestor.is_dir()
+    if exists and not is_dir:
+        raise InputError(field, f"{shown(out_dir)} exists and is not a folder")
+    if inside:
+        raise InputError(field, f"{shown(out_dir)} is the working directory or contains it; name a subfolder")
+    if names and OUTPUT_MARKER not in names and not set(names) <= LEGACY_OUTPUTS:
+        listed = ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
+        raise InputError(field, f"{shown(out_dir)} holds files elastoplast did not write ({listed}); "
+                                "name a new or empty folder")
+    if not ancestor_is_dir:
+        raise InputError(field, f"cannot create {shown(out_dir)}: {shown(ancestor)} is not a folder")
     try:  # the only sure test of writability is to write
         os.rmdir(tempfile.mkdtemp(prefix=".elastoplast-probe-", dir=ancestor))
     except OSError as exc:
-        raise InputError(field, f"cannot create {out_dir}: {ancestor} is not writable ({exc.strerror})") from None
+        raise InputError(field, f"cannot create {shown(out_dir)}: {shown(ancestor)} is not writable "
+                                f"({exc.strerror})") from None
     return out
 
 

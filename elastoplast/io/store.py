@@ -44,6 +44,8 @@ from elastoplast.certificate.kkt import KKTResiduals
 from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.errors import InputError
 from elastoplast.fem.material import Material
+from elastoplast.io.output import json_text, path_errors
+from elastoplast.limits import shown
 from elastoplast.mesh.base import Mesh
 from elastoplast.problem.definition import Boundary, Obstacle, Problem
 
@@ -209,9 +211,7 @@ def atomic_write(path: str | Path, data: bytes) -> None:
 
 
 def _json_bytes(data: Any) -> bytes:
-    from elastoplast.io.output import json_text  # strict JSON, as in summary.json
-
-    return json_text(data).encode()
+    return json_text(data).encode()  # strict JSON, as in summary.json
 
 
 def _npz_bytes(arrays: Mapping[str, np.ndarray]) -> bytes:
@@ -303,13 +303,14 @@ class Store:
         except InputError:
             raise
         except (sqlite3.DatabaseError, OSError, ValueError, KeyError, EOFError) as exc:
-            raise InputError("store", f"{self.path} is damaged: cannot read {what} "
+            raise InputError("store", f"{shown(self.path)} is damaged: cannot read {what} "
                                       f"({type(exc).__name__}: {exc})") from None
 
     # -- reading ----------------------------------------------------------------
 
     def exists(self) -> bool:
-        return self.index_path.is_file()
+        with path_errors(self.path, "store"):  # a name too long for the file system, a NUL byte
+            return self.index_path.is_file()
 
     def rows(self, where: str = "", params: tuple = ()) -> list[dict[str, Any]]:
         """Index rows as dicts, e.g. ``rows("status = ? AND method = ?", ("converged", "conic"))``."""
@@ -322,7 +323,7 @@ class Store:
     def row(self, case_id: str) -> dict[str, Any]:
         found = self.rows("id = ?", (case_id,))
         if not found:
-            raise InputError("case", f"no case {case_id!r} in {self.path}")
+            raise InputError("case", f"no case {case_id!r} in {shown(self.path)}")
         return found[0]
 
     def load_input(self, case_id: str) -> ResolvedInput:
@@ -395,20 +396,23 @@ class Store:
     @contextmanager
     def writer(self) -> Iterator["Store"]:
         """Lock the store, create the index if needed and sweep temporary folders."""
-        if self.path.exists() and not self.path.is_dir():
-            raise InputError("out", f"{self.path} exists and is not a folder")
-        if self.path.is_dir() and not self.exists() and {p.name for p in self.path.iterdir()} - {"cases", ".lock"}:
-            raise InputError("out", f"{self.path} is not empty and holds no campaign store (no index.sqlite)")
+        with path_errors(self.path, "out"):
+            exists, is_dir = self.path.exists(), self.path.is_dir()
+            names = {p.name for p in self.path.iterdir()} if is_dir else set()
+        if exists and not is_dir:
+            raise InputError("out", f"{shown(self.path)} exists and is not a folder")
+        if is_dir and not self.exists() and names - {"cases", ".lock"}:
+            raise InputError("out", f"{shown(self.path)} is not empty and holds no campaign store (no index.sqlite)")
         try:
             (self.path / "cases").mkdir(parents=True, exist_ok=True)
             lock = open(self.path / ".lock", "w")
         except OSError as exc:
-            raise InputError("out", f"cannot write the store {self.path}: {exc.strerror}") from None
+            raise InputError("out", f"cannot write the store {shown(self.path)}: {exc.strerror}") from None
         try:
             try:
                 fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
-                raise InputError("out", f"another process is writing to {self.path}") from None
+                raise InputError("out", f"another process is writing to {shown(self.path)}") from None
             for tmp in (self.path / "cases").glob(".tmp-*"):
                 shutil.rmtree(tmp, ignore_errors=True)
             cols = ", ".join(f'"{n}" {t}' for n, t in _COLUMNS)

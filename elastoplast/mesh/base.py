@@ -10,11 +10,12 @@ from __future__ import annotations
 import contextlib
 import io
 import itertools
+import numbers
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -23,19 +24,26 @@ from elastoplast.limits import (as_path, check_input_file, check_memory, check_m
 from elastoplast.mesh.topology import boundary_facets, local_edges, locate_rows, unique_rows
 from elastoplast.mesh.checks import check_conforming, check_facet_groups, merge_coincident_nodes
 from elastoplast.errors import InputError
+from elastoplast.errors import finite_float, short_repr
 
 
 @dataclass(frozen=True)
 class Mesh:
     """Nodes ``points (n_nodes, d)``, simplices ``cells (n_el, d+1)``, named
-    facet groups ``groups[name] -> (n_facets, d)`` node indices."""
+    facet groups ``groups[name] -> (n_facets, d)`` node indices.
+
+    ``other_groups[name] -> dimension``: the named groups of a mesh file that are not
+    facets (gmsh physical groups of the body, curves in 3D, points), kept only so that
+    a boundary naming one is told what it named."""
 
     points: np.ndarray
     cells: np.ndarray
     groups: Mapping[str, np.ndarray] = field(default_factory=dict)
+    other_groups: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "groups", MappingProxyType(dict(self.groups)))
+        object.__setattr__(self, "other_groups", MappingProxyType(dict(self.other_groups)))
 
     @property
     def dim(self) -> int:
@@ -128,8 +136,6 @@ def _crossed_triangles(points: np.ndarray, shape: tuple[int, ...]) -> tuple[np.n
     return points, cells
 
 
-
-
 def structured_mesh(
     size: Sequence[float],
     divisions: Sequence[int],
@@ -147,13 +153,15 @@ def structured_mesh(
     ``bottom`` for ``x_d = max`` and ``x_d = 0``, and ``contact``: the bottom
     facets lying within ``contact_radius`` of ``contact_center`` (a half-width
     in 2D). Nodes are graded toward the contact centre and the bottom.
+
+    Every argument is checked here (:func:`check_generator_arguments`), for Python
+    callers and the ``[mesh]`` table alike: a bad one is an :class:`InputError`
+    naming it as the table does (``mesh.divisions``, ...).
     """
+    size, divisions, contact_radius, origin, contact_center, grading, pattern = check_generator_arguments(
+        size, divisions, contact_radius, origin, contact_center, grading, pattern)
     dim = len(size)
     check_generator_size(divisions, pattern)
-    if origin is None:
-        origin = [-s / 2.0 for s in size[:-1]] + [0.0]
-    if contact_center is None:
-        contact_center = [0.0] * (dim - 1)
     toward = list(contact_center) + [0.0]
     axes = [
         graded_nodes(origin[a], origin[a] + size[a], int(divisions[a]), toward[a], grading)
@@ -195,6 +203,88 @@ def structured_mesh(
 
 LENGTH_RANGE = (1e-50, 1e50)  # lengths in any unit; d-th powers and their products stay normal floats
 MAX_ASPECT = 1e6  # element aspect ratio (largest over smallest grid spacing in one cell)
+#: the shortest edge of a mesh, generated or read, must be at least this share of its largest
+#: coordinate: a double keeps 16 digits, so a mesh far from the origin keeps about 7 of each
+#: edge vector, which strains, volumes and the certificate's differences need
+ROUND_OFF_SHARE = 1e-9
+
+
+def _items(val: Any) -> list | None:
+    """The entries of a list, tuple or one-dimensional array; None for anything else."""
+    if isinstance(val, (list, tuple)) or (isinstance(val, np.ndarray) and val.ndim == 1):
+        return list(val)
+    return None
+
+
+def finite_list(val: Any, n: int | tuple[int, ...], field: str) -> list[float]:
+    """``val`` as a list of ``n`` (or one of the lengths ``n``) finite floats, else an
+    :class:`InputError` naming ``field``."""
+    counts = (n,) if isinstance(n, int) else n
+    items = _items(val)
+    floats = [finite_float(v) for v in items] if items is not None else []
+    if len(floats) not in counts or any(v is None for v in floats):
+        many = " or ".join(str(c) for c in counts)
+        raise InputError(field, f"must be a list of {many} finite number(s), got {short_repr(val)}")
+    return floats
+
+
+def check_generator_arguments(size: Any, divisions: Any, contact_radius: Any, origin: Any, contact_center: Any,
+                              grading: Any, pattern: Any) -> tuple:
+    """The arguments of :func:`structured_mesh`, checked and normalised: ``(size, divisions,
+    contact_radius, origin, contact_center, grading, pattern)`` with defaults filled in.
+
+    ``size``: 2 or 3 positive lengths (the dimension); ``divisions``: as many positive
+    integers; ``contact_radius``: finite and > 0; ``origin``: d finite numbers, the last 0
+    (the body sits on the contact plane), default centred in x'; ``contact_center``:
+    d - 1 finite numbers on the bottom face, default the origin of x'; ``grading``:
+    finite and >= 1; ``pattern``: ``"diagonal"`` or, in 2D, ``"crossed"``. Each refusal
+    is an :class:`InputError` naming ``mesh.<argument>``.
+    """
+    size = finite_list(size, (2, 3), "mesh.size")
+    dim = len(size)
+    if min(size) <= 0:
+        raise InputError("mesh.size", f"{dim} positive lengths are required, got {short_repr(size)}")
+    counts = _items(divisions)
+    if (counts is None or len(counts) != dim
+            or not all(isinstance(v, numbers.Integral) and not isinstance(v, (bool, np.bool_)) and v >= 1
+                       for v in counts)):
+        raise InputError("mesh.divisions", f"must be a list of {dim} positive integers, got {short_repr(divisions)}")
+    divisions = [int(v) for v in counts]
+    radius = finite_float(contact_radius)
+    if radius is None:
+        raise InputError("mesh.contact_radius", f"must be a finite number, got {short_repr(contact_radius)}")
+    if not radius > 0:
+        raise InputError("mesh.contact_radius", f"must be > 0, got {radius!r}")
+    value = finite_float(grading)
+    if value is None:
+        raise InputError("mesh.grading", f"must be a finite number, got {short_repr(grading)}")
+    if not value >= 1.0:
+        raise InputError("mesh.grading", f"must be >= 1 (1 is uniform), got {value!r}")
+    if not isinstance(pattern, str) or pattern not in ("diagonal", "crossed") or (pattern == "crossed" and dim == 3):
+        raise InputError("mesh.pattern", f"must be 'diagonal' or (2D only) 'crossed', got {short_repr(pattern)}")
+    if origin is None:
+        origin = [-s / 2.0 for s in size[:-1]] + [0.0]
+    else:
+        origin = finite_list(origin, dim, "mesh.origin")
+        if origin[-1] != 0.0:
+            raise InputError("mesh.origin", "the body must sit on the contact plane: the last coordinate must be 0")
+    if contact_center is None:
+        center = [0.0] * (dim - 1)
+    else:
+        center = finite_list(contact_center, dim - 1, "mesh.contact_center")
+        if any(not lo <= c <= lo + s for c, lo, s in zip(center, origin, size)):
+            raise InputError("mesh.contact_center", f"{center} lies outside the bottom face "
+                                                    f"{[[lo, lo + s] for lo, s in zip(origin[:-1], size)]}")
+    return size, divisions, radius, origin, center, value, pattern
+
+
+def check_resolved(shortest: float, magnitude: float, field: str, what: str, fix: str) -> None:
+    """Refuse a mesh whose shortest length ``shortest`` (a grid spacing, an edge) is below
+    :data:`ROUND_OFF_SHARE` of its largest coordinate ``magnitude``: the coordinates have
+    lost it to round-off. One rule for generated meshes and mesh files."""
+    if shortest < ROUND_OFF_SHARE * magnitude:
+        raise InputError(field, f"{what} {shortest:.3g} is lost to round-off in coordinates of magnitude "
+                                f"{magnitude:.3g} (lengths below {ROUND_OFF_SHARE:g} of it are not resolved): {fix}")
 
 
 def check_generator_size(divisions: Sequence[int], pattern: str = "diagonal") -> None:
@@ -211,11 +301,11 @@ def check_generator_grid(axes: Sequence[np.ndarray], size: Sequence[float], divi
     """Refuse grids whose elements would be degenerate or hopelessly ill-conditioned.
 
     Each size must lie in ``LENGTH_RANGE``; grid spacings must be resolved by the
-    coordinates (``>= 1e-9`` of their magnitude: a far ``origin`` loses them to
-    round-off); and no cell may be more than ``MAX_ASPECT`` times longer along one
-    axis than along another (stiffness conditioning grows like its square). The field
-    named is the one that made the grid so: ``mesh.size``, ``mesh.origin`` or
-    ``mesh.grading``.
+    coordinates (at least :data:`ROUND_OFF_SHARE` of their magnitude, the rule mesh
+    files follow too: a far ``origin`` loses them to round-off); and no cell may be
+    more than ``MAX_ASPECT`` times longer along one axis than along another (stiffness
+    conditioning grows like its square). The field named is the one that made the grid
+    so: ``mesh.size``, ``mesh.origin`` or ``mesh.grading``.
     """
     lo, hi = LENGTH_RANGE
     for s in size:
@@ -224,14 +314,13 @@ def check_generator_grid(axes: Sequence[np.ndarray], size: Sequence[float], divi
     spacing = [np.diff(a) for a in axes]
     magnitude = max(max(abs(o), abs(o + s)) for o, s in zip(origin, size))
     uniform = [s / int(n) for s, n in zip(size, divisions)]
-    if min(uniform) < 1e-9 * magnitude:
-        raise InputError("mesh.origin", f"the grid spacing {min(uniform):.3g} is lost to round-off in coordinates "
-                                        f"of magnitude {magnitude:.3g} (origin {list(origin)}): place the block near 0")
+    check_resolved(min(uniform), magnitude, "mesh.origin", "the grid spacing",
+                   f"place the block near 0 (origin {list(origin)})")
     smallest = [float(h.min()) for h in spacing]
     largest = [float(h.max()) for h in spacing]
     aspect = max(largest[a] / smallest[b] if smallest[b] > 0 else np.inf
                  for a in range(len(axes)) for b in range(len(axes)) if a != b)
-    if min(smallest) < 1e-9 * magnitude or aspect > MAX_ASPECT:
+    if min(smallest) < ROUND_OFF_SHARE * magnitude or aspect > MAX_ASPECT:
         uniform_aspect = max(uniform) / min(uniform)
         what = (f"cells up to {aspect:.3g} times longer along one axis than another (at most {MAX_ASPECT:g}), "
                 f"smallest spacing {min(smallest):.3g}")
@@ -274,7 +363,7 @@ def read_mesh(path: str | Path) -> Mesh:
     check_memory(mesh_read_bytes(path, size), "mesh.file", f"reading {path} ({format_bytes(size)})",
                  "use a smaller mesh")
     m = _meshio_read(path)
-    dim, body, facet_groups, lines = _cells_by_role(m, path)
+    dim, body, facet_groups, lines, others = _cells_by_role(m, path)
     points = _mesh_points(m, dim, body, path)
     n_facets = sum(len(f) for f in facet_groups.values())
     check_mesh_size(dim, int(np.unique(body).size), len(body), n_facets, "mesh.file", f"the mesh in {path}",
@@ -296,7 +385,7 @@ def read_mesh(path: str | Path) -> Mesh:
                                           f"{_BODY_TYPES[dim]} uses)")
         groups[name] = facets
     untagged = {k: groups.pop(k) for k in [k for k in groups if k.startswith(_UNTAGGED)]}
-    mesh = Mesh(points=points[used], cells=renumber[body], groups=groups)
+    mesh = Mesh(points=points[used], cells=renumber[body], groups=groups, other_groups=others)
     uniq, counts = check_conforming(mesh.points, mesh.cells, "mesh.file")
     check_facet_groups(uniq, counts, groups, mesh.n_nodes, "mesh.file")
     check_facet_groups(uniq, counts, untagged, mesh.n_nodes, "mesh.file", boundary_only=False)
@@ -345,8 +434,9 @@ def _cell_tags(m) -> tuple[str, list] | tuple[None, None]:
     return None, None
 
 
-def _cells_by_role(m, path: Path) -> tuple[int, np.ndarray, dict[str, np.ndarray], np.ndarray]:
-    """``(dim, elements, facet groups by name, 3D lines)``; refuses cell types it does not solve."""
+def _cells_by_role(m, path: Path) -> tuple[int, np.ndarray, dict[str, np.ndarray], np.ndarray, dict[str, int]]:
+    """``(dim, elements, facet groups by name, 3D lines, other named groups -> their dimension)``;
+    refuses cell types it does not solve."""
     found: dict[str, int] = {}
     for block in m.cells:
         if len(block.data):
@@ -395,12 +485,13 @@ def _cells_by_role(m, path: Path) -> tuple[int, np.ndarray, dict[str, np.ndarray
             name = tag_names.get((dim - 1, int(tag)), str(int(tag)))
             lists.setdefault(name, []).append(data[tags[i] == tag])
     facet_groups = {name: np.concatenate(parts).astype(np.int64) for name, parts in lists.items()}
+    others = {name: d for (d, _), name in tag_names.items() if d != dim - 1 and name not in facet_groups}
     n_points = len(m.points)
     for what, arr in [(body_type, body), ("line", lines)] + [(f"group {k!r}", v) for k, v in facet_groups.items()]:
         if arr.size and (arr.min() < 0 or arr.max() >= n_points):
             raise InputError("mesh.file", f"{path}: {what} cells refer to node {int(arr.max())} (or a negative "
                                           f"index) but the file has {n_points} nodes")
-    return dim, body, facet_groups, lines
+    return dim, body, facet_groups, lines, others
 
 
 def _mesh_points(m, dim: int, body: np.ndarray, path: Path) -> np.ndarray:
@@ -425,7 +516,20 @@ def _mesh_points(m, dim: int, body: np.ndarray, path: Path) -> np.ndarray:
     if not lo <= extent <= hi:
         raise InputError("mesh.file", f"{path}: the mesh extends over {extent:.3g}; lengths must lie between "
                                       f"{lo:g} and {hi:g} (in any unit)")
+    check_resolved(shortest_edge(points, body), float(np.abs(points[used]).max()), "mesh.file",
+                   f"{path}: the shortest edge", "translate the mesh near the origin (in x', and the obstacle's "
+                                                 "center with it)")
     return points
+
+
+def shortest_edge(points: np.ndarray, cells: np.ndarray) -> float:
+    """The shortest edge of the simplices ``cells`` that has a positive length (inf if none):
+    edges of length 0 are collapsed elements, which the conformity checks name."""
+    shortest = np.inf
+    for a, b in local_edges(points.shape[1]):
+        length = np.sqrt(np.sum((points[cells[:, a]] - points[cells[:, b]]) ** 2, axis=1))
+        shortest = min(shortest, float(length[length > 0].min(initial=np.inf)))
+    return shortest
 
 
 def _check_lines_are_edges(mesh: Mesh, lines: np.ndarray, path: Path) -> None:

@@ -88,7 +88,7 @@ from elastoplast.mesh.topology import (
     row_keys,
     unique_rows,
 )
-from elastoplast.options import Spec, check_value
+from elastoplast.options import Spec, check_array, check_value
 
 #: most bisections of one element in one call (each halves it; 60 already exceed any memory)
 MAX_BISECTIONS = 60
@@ -307,6 +307,7 @@ def _marked_mask(marked, n: int) -> np.ndarray:
 
 
 def _check_state(state: BisectionState, mesh: Mesh) -> None:
+    expect(state, BisectionState, "state", "the state ep.refine returned with this mesh, or None")
     ok = (state.cells.shape == mesh.cells.shape and state.n_nodes == mesh.n_nodes
           and np.array_equal(np.sort(state.cells, axis=1), np.sort(mesh.cells, axis=1)))
     if not ok:
@@ -467,7 +468,10 @@ def prolong_p1(state: BisectionState, values: np.ndarray) -> np.ndarray:
     before refinement) onto all nodes of ``state`` (the refined mesh): each new
     node takes the mean of the two ends of the edge it bisected, which is the
     value of the P1 field there. ``values`` is ``(n_old,)`` or ``(n_old, ...)``."""
-    values = np.asarray(values)
+    expect(state, BisectionState, "state", "the state ep.refine returned with the refined mesh")
+    values = check_array("values", values)
+    if values.ndim == 0:
+        raise InputError("values", "expected one value (or row) per node of the mesh before refinement, got a scalar")
     n_old, n = values.shape[0], state.n_nodes
     par = state.node_parents
     if n_old > n or n_old < int(np.sum(par[:, 0] < 0)):
@@ -500,16 +504,14 @@ def dorfler_mark(indicators: np.ndarray, theta: float) -> np.ndarray:
     is left unmarked while a smaller one is marked. Zero indicators are never
     marked; ``theta = 0`` marks nothing.
     """
-    eta = np.asarray(indicators, dtype=float)
+    eta = check_array("indicators", indicators)
     if eta.ndim != 1:
         raise InputError("indicators", f"expected one indicator per element, got shape {eta.shape}")
     if not np.all(np.isfinite(eta)):
         raise InputError("indicators", f"{int(np.sum(~np.isfinite(eta)))} indicator(s) are NaN or infinite")
     if np.any(eta < 0):
         raise InputError("indicators", f"{int(np.sum(eta < 0))} indicator(s) are negative (min {eta.min():.3g})")
-    theta = float(theta)
-    if not 0.0 <= theta <= 1.0:
-        raise InputError("theta", f"must lie in [0, 1], got {theta}")
+    theta = check_value("theta", theta, Spec(float, "", lo=0.0, hi=1.0))
     ordered = np.sort(eta)[::-1]
     cumulative = np.cumsum(ordered)
     target = theta * (cumulative[-1] if eta.size else 0.0)
@@ -523,7 +525,7 @@ def shape_quality(mesh: Mesh) -> np.ndarray:
     """Inradius over longest edge of each simplex, divided by its value for the
     regular simplex, ``1/sqrt(2 d (d+1))``: 1 for equilateral, 0 for flat.
     The inradius is ``d |T| / (sum of the facet measures)``."""
-    d = mesh.dim
+    d = _check_mesh(mesh)
     X = mesh.points[mesh.cells]
     vol = np.abs(signed_volumes(mesh.points, mesh.cells))
     le = local_edges(d)

@@ -8,8 +8,7 @@ complaint about the input is an :class:`InputError` naming the key.
 
 from __future__ import annotations
 
-import math
-import numbers
+import os
 import tomllib
 import warnings
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ from elastoplast.limits import as_path, read_bytes
 from elastoplast.errors import InputError
 from elastoplast.fem.material import Material
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
+from elastoplast.errors import finite_float, short_repr
 from elastoplast.problem.expressions import SAFE_FUNCTIONS, compile_expression
 
 AXES = {"x": 0, "y": 1, "z": 2}
@@ -50,11 +50,15 @@ MAX_PSI_OVER_SPAN = 1e6
 
 def _check_psi(psi: np.ndarray, xp: np.ndarray, what: str, field: str, centre=None) -> np.ndarray:
     """The obstacle at the contact nodes must be finite, >= 0 (docs/math.md: the
-    rigid body lies below x_d = 0 and touches the body where psi = 0) and not steeper
-    than ``MAX_PSI_OVER_SPAN`` times the zone. A psi that does not reach 0 on the zone
-    only shifts U by the gap, which is said in a warning: for a shape with a ``centre``
-    (psi = 0 there) when the centre lies outside the zone's bounding box, for a formula
-    when its minimum at the nodes exceeds half its range over them."""
+    rigid body lies below x_d = 0 and touches the body where psi = 0), with a relief
+    (max - min over the nodes) of at most ``MAX_PSI_OVER_SPAN`` times the zone's size
+    (steeper, it touches one node and its values elsewhere only upset the solvers), and
+    no farther than that below the zone (its lowest value at most that many times the
+    size: beyond, the displacements are lost to the round-off of the gap U includes).
+    A psi that does not reach 0 on the zone, within that distance, only shifts U by the
+    gap, which is said in a warning: for a shape with a ``centre`` (psi = 0 there) when
+    the centre lies outside the zone's bounding box, for a formula when its minimum at
+    the nodes exceeds half its range over them."""
     if not np.all(np.isfinite(psi)):
         bad = np.flatnonzero(~np.isfinite(psi))[0]
         raise InputError(field, f"{what} is not finite at every contact node (e.g. {psi[bad]} at x' = "
@@ -68,17 +72,24 @@ def _check_psi(psi: np.ndarray, xp: np.ndarray, what: str, field: str, centre=No
         i = int(np.argmin(psi))
         raise InputError(field, f"{what} is negative at contact nodes (min {low:.4g} at x' = {xp[i].tolist()}): the "
                                 "rigid body would start inside the body; psi >= 0, with 0 where it first touches")
-    if high > MAX_PSI_OVER_SPAN * span:
+    relief = high - low
+    if relief > MAX_PSI_OVER_SPAN * span:
         i = int(np.argmax(psi))
-        raise InputError(field, f"{what} rises to {high:.4g} at x' = {xp[i].tolist()}, more than {MAX_PSI_OVER_SPAN:g} "
-                                f"times the size {span:.4g} of the contact zone: a surface this steep touches one node "
-                                "and its values elsewhere only upset the solvers")
+        raise InputError(field, f"{what} rises to {high:.4g} at x' = {xp[i].tolist()}, {relief:.4g} above its lowest "
+                                f"value, more than {MAX_PSI_OVER_SPAN:g} times the size {span:.4g} of the contact zone: "
+                                "a surface this steep touches one node and its values elsewhere only upset the solvers")
+    named = field if centre is None else field.rsplit(".", 1)[0] + ".center"
+    if low > MAX_PSI_OVER_SPAN * span:
+        i = int(np.argmin(psi))
+        raise InputError(named, f"{what} lies {low:.4g} below the contact zone (its closest point, at x' = "
+                                f"{xp[i].tolist()}), more than {MAX_PSI_OVER_SPAN:g} times the size {span:.4g} of the "
+                                "zone: U would include that gap, and the displacements would be lost to its round-off; "
+                                "move the obstacle up to the body (psi = 0 where it first touches)")
     if centre is not None:
         gap = bool(np.any((np.asarray(centre) < xp.min(axis=0)) | (np.asarray(centre) > xp.max(axis=0))))
     else:
         gap = low > 1e-12 * scale and low > 0.5 * (high - low)
     if gap:
-        named = field if centre is None else field.rsplit(".", 1)[0] + ".center"
         warnings.warn(f"{named}: the obstacle does not touch the body before loading (min psi = {low:.4g} > 0 at "
                       "the contact nodes): U includes this initial gap", stacklevel=3)
     return np.maximum(psi, 0.0)
@@ -146,28 +157,20 @@ class Problem:
     def dim(self) -> int:
         return self.mesh.dim
 
+    def with_force(self, force: float) -> "Problem":
+        """The same problem under another load, ``force`` checked as a problem file's
+        ``load.force``: a finite number > 0 (not a string, not a boolean)."""
+        from dataclasses import replace
+
+        value = _number({"force": force}, "force", "load")
+        if not value > 0:
+            raise InputError("load.force", f"must be > 0, got {force!r}")
+        return replace(self, force=value)
+
 
 # ----------------------------------------------------------------------------
 # validation helpers
 # ----------------------------------------------------------------------------
-
-
-def _finite(val: Any) -> float | None:
-    """``val`` as a finite float (``-0.0`` made ``0.0``), or None for anything else:
-    booleans, strings, tables, lists, ``nan``, ``inf`` and integers beyond the float range."""
-    if isinstance(val, (bool, np.bool_)) or not isinstance(val, numbers.Real):
-        return None
-    try:
-        f = float(val)
-    except (OverflowError, ValueError, TypeError):
-        return None
-    return f + 0.0 if math.isfinite(f) else None
-
-
-def _short(val: Any) -> str:
-    """``repr`` of a user value, cut to one readable line."""
-    text = repr(val)
-    return text if len(text) <= 80 else text[:60] + f"... ({len(text)} characters)"
 
 
 def _number(section: Mapping, key: str, prefix: str, *, default: Any = None) -> float:
@@ -175,10 +178,15 @@ def _number(section: Mapping, key: str, prefix: str, *, default: Any = None) -> 
         if default is None:
             raise InputError(f"{prefix}.{key}", "is required")
         return default
-    val = _finite(section[key])
-    if val is None:
-        raise InputError(f"{prefix}.{key}", f"must be a finite number, got {_short(section[key])}")
-    return val
+    return _finite_number(section[key], f"{prefix}.{key}")
+
+
+def _finite_number(val: Any, field: str) -> float:
+    """``val`` as a finite float (:func:`~elastoplast.mesh.base.finite_float`), else an InputError naming ``field``."""
+    number = finite_float(val)
+    if number is None:
+        raise InputError(field, f"must be a finite number, got {short_repr(val)}")
+    return number
 
 
 def _names(section: Mapping, key: str, prefix: str, default: Sequence[str] | None = None) -> tuple[str, ...]:
@@ -204,7 +212,10 @@ def _only(section: Any, allowed: set[str], prefix: str) -> Mapping:
 
 
 def make_material(E: float, nu: float, yield_stress: float, hardening: float, *, prefix: str = "material") -> Material:
-    """A validated :class:`Material`; warns for perfect plasticity (H = 0)."""
+    """A validated :class:`Material`; warns for perfect plasticity (H = 0). Every
+    argument must be a finite number (not a string, a boolean, None or a list)."""
+    E, nu, yield_stress, hardening = (_finite_number(val, f"{prefix}.{key}") for key, val in (
+        ("E", E), ("nu", nu), ("yield_stress", yield_stress), ("hardening", hardening)))
     if not E > 0:
         raise InputError(f"{prefix}.E", f"must be > 0, got {E!r}")
     if not -1.0 < nu < 0.5:
@@ -214,7 +225,7 @@ def make_material(E: float, nu: float, yield_stress: float, hardening: float, *,
     if not hardening >= 0:
         raise InputError(f"{prefix}.hardening", f"must be >= 0, got {hardening!r}")
     if nu >= 0.49:
-        warnings.warn(f"{prefix}.nu = {nu:g} is nearly incompressible (bulk / shear modulus "
+        warnings.warn(f"{prefix}.nu = {nu:.15g} is nearly incompressible (bulk / shear modulus "
                       f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.3g}): P1 elements lock elastically and the solvers lose "
                       "accuracy", stacklevel=2)
     if hardening == 0:
@@ -226,15 +237,18 @@ def make_material(E: float, nu: float, yield_stress: float, hardening: float, *,
             "the limit load on any mesh",
             stacklevel=2,
         )
-    return Material(float(E) + 0.0, float(nu) + 0.0, float(yield_stress) + 0.0, float(hardening) + 0.0)
+    return Material(E, nu, yield_stress, hardening)
 
 
 def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle") -> Obstacle:
+    """A validated :class:`Obstacle`: the shape's own keys required and checked, and a key
+    the shape does not use (``radius`` beside ``flat`` or ``expression``, ``expression``
+    beside any other shape) refused rather than ignored."""
     _only(section, {"shape", "radius", "center", "expression"}, prefix)
     shape = section.get("shape")
     shapes = {"sphere", "paraboloid", "cylinder", "flat", "expression"}
     if not isinstance(shape, str) or shape not in shapes:
-        raise InputError(f"{prefix}.shape", f"must be one of {sorted(shapes)}, got {_short(shape)}")
+        raise InputError(f"{prefix}.shape", f"must be one of {sorted(shapes)}, got {short_repr(shape)}")
     if shape == "cylinder" and dim == 3:
         raise InputError(f"{prefix}.shape", "'cylinder' is the 2D (plane strain) obstacle; use 'sphere' or 'paraboloid' in 3D")
     if shape == "sphere" and dim == 2:
@@ -251,25 +265,22 @@ def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle") -> Obsta
         if not isinstance(expression, str):
             raise InputError(f"{prefix}.expression", "a formula string is required for shape = 'expression'")
         compile_expression(expression, dim, f"{prefix}.expression")
+    written = section["shape"]  # before 'sphere' in 2D became 'cylinder'
+    for key, users in (("radius", ("sphere", "cylinder", "paraboloid")), ("expression", ("expression",))):
+        if key in section and written not in users:  # a key the shape ignores would be dropped without a word
+            listed = ", ".join(f'"{u}"' for u in users[:-1]) + (" or " if len(users) > 1 else "") + f'"{users[-1]}"'
+            raise InputError(f"{prefix}.{key}", f'only for shape = {listed}, not for shape = "{written}", which does '
+                                                "not use it: remove it (or change the shape)")
     return Obstacle(shape=shape, dim=dim, radius=radius, center=tuple(center), expression=expression)
-
-
-def _int_list(section: Mapping, key: str, prefix: str, n: int) -> list[int]:
-    val = section.get(key)
-    if (not isinstance(val, (list, tuple)) or len(val) != n
-            or not all(isinstance(v, numbers.Integral) and not isinstance(v, (bool, np.bool_)) and v >= 1
-                       for v in val)):
-        raise InputError(f"{prefix}.{key}", f"must be a list of {n} positive integers, got {_short(val)}")
-    return [int(v) for v in val]
 
 
 def _float_list(section: Mapping, key: str, prefix: str, n: int, default=None) -> list[float] | None:
     if key not in section:
         return default
     val = section[key]
-    floats = [_finite(v) for v in val] if isinstance(val, (list, tuple)) else []
+    floats = [finite_float(v) for v in val] if isinstance(val, (list, tuple)) else []
     if len(floats) != n or any(v is None for v in floats):
-        raise InputError(f"{prefix}.{key}", f"must be a list of {n} finite number(s), got {_short(val)}")
+        raise InputError(f"{prefix}.{key}", f"must be a list of {n} finite number(s), got {short_repr(val)}")
     return floats
 
 
@@ -277,7 +288,9 @@ GENERATORS = {"rectangle": 2, "box": 3}
 
 
 def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh") -> Mesh:
-    """Read ``file`` or run the ``generator`` ('rectangle' 2D, 'box' 3D)."""
+    """Read ``file`` or run the ``generator`` ('rectangle' 2D, 'box' 3D); the generator's
+    settings are checked by :func:`~elastoplast.mesh.base.structured_mesh` itself (fields
+    ``mesh.<key>``), once for this table and for Python callers."""
     _only(section, {"file", "generator", "size", "divisions", "origin", "grading", "contact_radius", "contact_center",
                     "pattern"}, prefix)
     if ("file" in section) == ("generator" in section):
@@ -294,38 +307,24 @@ def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh") -> Mesh:
         return read_mesh(path)
     gen = section["generator"]
     if not isinstance(gen, str) or gen not in GENERATORS:
-        raise InputError(f"{prefix}.generator", f"must be one of {sorted(GENERATORS)}, got {_short(gen)}")
+        raise InputError(f"{prefix}.generator", f"must be one of {sorted(GENERATORS)}, got {short_repr(gen)}")
     dim = GENERATORS[gen]
-    size = _float_list(section, "size", prefix, dim)
-    if size is None or min(size) <= 0:
-        raise InputError(f"{prefix}.size", f"{dim} positive lengths are required, got {_short(section.get('size'))}")
-    divisions = _int_list(section, "divisions", prefix, dim)
-    grading = _number(section, "grading", prefix, default=1.0)
-    if not grading >= 1.0:
-        raise InputError(f"{prefix}.grading", f"must be >= 1 (1 is uniform), got {grading!r}")
-    radius = _number(section, "contact_radius", prefix)
-    if not radius > 0:
-        raise InputError(f"{prefix}.contact_radius", f"must be > 0, got {radius!r}")
-    origin = _float_list(section, "origin", prefix, dim)
-    center = _float_list(section, "contact_center", prefix, dim - 1)
-    pattern = section.get("pattern", "diagonal")
-    if not isinstance(pattern, str) or pattern not in ("diagonal", "crossed") or (pattern == "crossed" and dim == 3):
-        raise InputError(f"{prefix}.pattern", f"must be 'diagonal' or (2D only) 'crossed', got {_short(pattern)}")
-    if origin is not None and origin[-1] != 0.0:
-        raise InputError(f"{prefix}.origin", "the body must sit on the contact plane: the last coordinate must be 0")
-    if center is not None:
-        lower = origin[:-1] if origin is not None else [-s / 2.0 for s in size[:-1]]
-        if any(not lo <= c <= lo + s for c, lo, s in zip(center, lower, size)):
-            raise InputError(f"{prefix}.contact_center", f"{center} lies outside the bottom face "
-                                                         f"{[[lo, lo + s] for lo, s in zip(lower, size)]}")
-    return structured_mesh(size, divisions, radius, origin=origin, contact_center=center, grading=grading,
-                           pattern=pattern)
+    for key in ("size", "divisions", "contact_radius"):
+        if key not in section:
+            raise InputError(f"{prefix}.{key}", "is required")
+    size = _float_list(section, "size", prefix, dim)  # the generator sets the dimension
+    return structured_mesh(size, section["divisions"], section["contact_radius"], origin=section.get("origin"),
+                           contact_center=section.get("contact_center"), grading=section.get("grading", 1.0),
+                           pattern=section.get("pattern", "diagonal"))
 
 
 def default_boundary(mesh: Mesh) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """The paper's setting on a generated block: every face but the bottom clamped."""
     clamped = tuple(n for n in mesh.groups if n not in ("bottom", "contact"))
     return clamped, ("contact",)
+
+
+FACETS = {2: "lines", 3: "triangles"}
 
 
 def make_boundary(section: Mapping, mesh: Mesh, generated: bool, prefix: str = "boundary") -> Boundary:
@@ -345,6 +344,10 @@ def make_boundary(section: Mapping, mesh: Mesh, generated: bool, prefix: str = "
         if isinstance(names, str):
             names = [names]
         for name in names:
+            if name in mesh.other_groups:
+                raise InputError(f"{prefix}.{key}", f"{name!r} is a {mesh.other_groups[name]}-dimensional physical "
+                                                    f"group; boundary groups must be facets ({FACETS[mesh.dim]} in "
+                                                    f"{mesh.dim}D): the mesh's facet groups are {sorted(mesh.groups)}")
             if name not in mesh.groups:
                 raise InputError(f"{prefix}.{key}", f"unknown group {name!r} (the mesh has {sorted(mesh.groups)})")
     if not contact:
@@ -357,15 +360,27 @@ def check_generated_contact_zone(mesh: Mesh, boundary: Boundary) -> None:
     ``contact_center``) must hold facets and keep clear of the vertically fixed sides:
     both are settings of ``mesh.contact_radius`` (and ``contact_center``), which the
     user wrote, rather than of ``boundary.contact``, which a generated problem need not
-    mention."""
+    mention. A vertically fixed group that covers contact facets itself (``contact`` or
+    ``bottom`` listed under ``clamped`` or ``fix_component`` on the vertical axis) is the
+    boundary list's doing, and that list is named."""
     if "contact" not in boundary.contact:
         return
-    if len(mesh.groups["contact"]) == 0:
+    facets = mesh.groups["contact"]
+    if len(facets) == 0:
         raise InputError("mesh.contact_radius", "no bottom facet lies within contact_radius of contact_center: the "
                                                 "contact zone must cover at least one facet of the mesh")
     contact = mesh.group_nodes(["contact"])
-    vertical = list(boundary.clamped) + list(boundary.fix_component.get(mesh.dim - 1, ()))
-    touched = [name for name in vertical if np.intersect1d(mesh.group_nodes([name]), contact).size]
+    axis = "xyz"[mesh.dim - 1]
+    vertical = [("clamped", name) for name in boundary.clamped] + [
+        (f"fix_component.{axis}", name) for name in boundary.fix_component.get(mesh.dim - 1, ())]
+    for key, name in vertical:
+        covered = int(np.all(np.isin(facets, mesh.group_nodes([name])), axis=1).sum())
+        if covered:
+            what = "clamps" if key == "clamped" else f"fixes the vertical component {axis} of"
+            raise InputError(f"boundary.{key}", f"group {name!r} {what} {covered} of the {len(facets)} facets of the "
+                                                "contact zone 'contact', which must move with the rigid body: leave "
+                                                f"it out of boundary.{key}")
+    touched = [name for _, name in vertical if np.intersect1d(mesh.group_nodes([name]), contact).size]
     if touched:
         raise InputError("mesh.contact_radius", f"the contact zone reaches the side(s) {touched}, where the vertical "
                                                 "displacement is fixed: keep contact_radius (around contact_center) "
@@ -375,13 +390,18 @@ def check_generated_contact_zone(mesh: Mesh, boundary: Boundary) -> None:
 SECTIONS = {"mesh", "material", "boundary", "obstacle", "load", "solver"}
 
 
-def problem_from_dict(data: Mapping, base_dir: str | Path = ".") -> Problem:
-    """Build a :class:`Problem` from the nested structure of the TOML format.
+def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Problem:
+    """Build a :class:`Problem` from the nested structure of the TOML format
+    (``base_dir``: the folder a relative mesh file is read from; None is the current one).
 
     The optional ``[solver]`` table is not part of the problem; it is ignored here
     and read by :func:`elastoplast.solvers.registry.solver_settings`.
     """
     _only(data, SECTIONS, "problem")
+    if base_dir is None:
+        base_dir = "."
+    if not isinstance(base_dir, (str, os.PathLike)):
+        raise InputError("base_dir", f"must be the folder mesh files are relative to (a path), got {short_repr(base_dir)}")
     for name in ("mesh", "material", "obstacle", "load"):
         if name not in data:
             raise InputError(name, "section is required")

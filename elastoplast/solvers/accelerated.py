@@ -64,7 +64,7 @@ from elastoplast.solvers.contact import (
     metric_projection,
     projection_note,
 )
-from elastoplast.solvers.loop import Monitor
+from elastoplast.solvers.loop import Monitor, check_inputs
 from elastoplast.solvers.uzawa import project_stresses
 
 #: step as a share of FISTA's bound 1 / lambda_max(C)
@@ -74,6 +74,9 @@ RHO_SHARE = 0.99
 #: moves from 0.7 (small plastic zones) down to 0.15-0.25 (2D at 6F, H <= E/100);
 #: 0.4 is the best single value over the 27 cases of part 2 (geometric mean).
 DEFAULT_PENALTY = {"stiffness": 0.4, "identity": 0.6}
+#: admitted penalty r (units of E): the best measured lie in 0.15..0.7, and 1e-8 and 1e8 still
+#: iterate without overflow (stalling); 1e-300 overflowed to inf within five iterations
+PENALTY_RANGE = (1e-8, 1e8)
 
 
 @dataclass(frozen=True)
@@ -94,7 +97,7 @@ class FastOptions(SolverOptions):
     splitting: str = option("stiffness", str, "ALG2 only: the metric M of the penalty (M = C or I)",
                             choices=("stiffness", "identity"))
     penalty: float | None = option(None, float, "ALG2 only: the penalty r in units of E (none: automatic)",
-                                   lo=0.0, lo_open=True, none=True)
+                                   lo=PENALTY_RANGE[0], hi=PENALTY_RANGE[1], none=True)
 
 
 def alg2_penalty(material: Material, options: "FastOptions") -> float:
@@ -217,7 +220,14 @@ def alg2_displacements(nd, step: ALG2Step, q: np.ndarray, sigma: np.ndarray, V: 
 
 
 def solve_uzawa_fast(disc, options: FastOptions = FastOptions()) -> Solution:
-    """FISTA with adaptive restart on Uzawa's steps; see the module docstring."""
+    """FISTA with adaptive restart on Uzawa's steps; see the module docstring.
+    ``options``: :class:`FastOptions`, a mapping of them or ``None``."""
+    options = check_inputs(disc, options, FastOptions)
+    with np.errstate(all="ignore"):  # a non-finite iterate is the monitor's DIVERGED, not a warning
+        return _solve_uzawa_fast(disc, options)
+
+
+def _solve_uzawa_fast(disc, options: FastOptions) -> Solution:
     t_start = time.perf_counter()
     timings = {"setup": 0.0, "iterations": 0.0, "certificate": 0.0}
     nd, units = nondimensionalize(disc)
@@ -261,7 +271,14 @@ def solve_alg2(disc, options: FastOptions = FastOptions()) -> Solution:
     :func:`prox_energy` at ``z = eps(v) + M^{-1} sigma / r``, step (3)
     ``sigma <- sigma + r M (eps(v) - q)``, which equals ``R(q)`` (returned by
     step (2)). The certificate judges ``(R(eps(v)), v, V)``, like Uzawa's.
+    ``options``: :class:`FastOptions`, a mapping of them or ``None``.
     """
+    options = check_inputs(disc, options, FastOptions)
+    with np.errstate(all="ignore"):  # a non-finite iterate is the monitor's DIVERGED, not a warning
+        return _solve_alg2(disc, options)
+
+
+def _solve_alg2(disc, options: FastOptions) -> Solution:
     t_start = time.perf_counter()
     timings = {"setup": 0.0, "iterations": 0.0, "certificate": 0.0}
     nd, units = nondimensionalize(disc)
@@ -297,6 +314,7 @@ def solve_alg2(disc, options: FastOptions = FastOptions()) -> Solution:
 
 def solve_accelerated(disc, options: FastOptions = FastOptions()) -> Solution:
     """The ``"uzawa-fast"`` method: FISTA (default) or ALG2 as ``options.variant`` says."""
+    options = check_inputs(disc, options, FastOptions)
     with iterative_context(disc, options.factorization):
         return VARIANTS[options.variant](disc, options)
 

@@ -27,8 +27,9 @@ from elastoplast.fem.discretize import Discretization, Units, nondimensionalize
 from elastoplast.fem.material import SQRT_3_2, return_mapping, von_mises
 from elastoplast.options import SolverOptions, option
 from elastoplast.solvers.backends import ConicAnswer, clarabel_settings, solve_clarabel
-from elastoplast.solvers.loop import within_tolerance
+from elastoplast.solvers.loop import check_inputs, within_tolerance
 from elastoplast.solvers.polish import newton_polish
+from elastoplast.certificate.solution import within_small_strains
 
 
 @dataclass(frozen=True)
@@ -228,7 +229,9 @@ def solve_conic(disc: Discretization, options: ConicOptions = ConicOptions()) ->
 
     With Clarabel's KKT convention ``P x + q + A^T z = 0`` the displacements are
     ``u = -z_equilibrium`` and ``U = -z_force`` (checked by the certificate).
+    ``options``: :class:`ConicOptions`, a mapping of them or ``None``.
     """
+    options = check_inputs(disc, options, ConicOptions)
     timings: dict[str, float] = {"setup": 0.0, "solve": 0.0}
 
     @elastic_first
@@ -280,7 +283,7 @@ def _finish(disc: Discretization, method: str, scaled, timings: dict[str, float]
             best = sol
     # the certificate, not the interior point's own verdict, decides
     if within_tolerance(best.kkt, options.tol):
-        return replace(best, status=Status.CONVERGED)
+        return within_small_strains(disc, replace(best, status=Status.CONVERGED))
     verdict = status if status is not Status.CONVERGED else Status.FAILED
     return replace(best, status=verdict,
                    message=f"{best.message}; certified KKT residual {best.kkt.worst:.1e} above tol {options.tol:g}")
@@ -358,25 +361,40 @@ def displacement_program(disc: Discretization):
     return prob, {"v": v, "V": V, "p": p_hat, "kappa": kappa, "eps": eps}, cons
 
 
+#: what CVXPY's advice "solve with verbose=True" is on the command line and from Python
+VERBOSE_ADVICE = "--option verbose=true (verbose=True from Python) shows Clarabel's log"
+
+
 def _cvxpy_solve(prob, options: ConicOptions, solver: str = "qdldl"):
+    """``(status, message)`` of CVXPY's Clarabel solve. CVXPY reports Clarabel's
+    ``MaxTime`` and ``MaxIterations`` alike as ``user_limit``: a run that used up a
+    time limit it was given ended at that limit, any other at ``max_iter``."""
     import cvxpy as cp
 
     kw = dict(tol_gap_abs=options.ip_tol, tol_gap_rel=options.ip_tol, tol_feas=options.ip_tol,
               tol_ktratio=min(1e-6, options.ip_tol), max_iter=options.max_iter,
               time_limit=float("inf") if options.time_limit is None else options.time_limit,
               direct_solve_method=solver)
+    t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():  # the status says it; no warning on top
             warnings.simplefilter("ignore", UserWarning)
             prob.solve(solver=cp.CLARABEL, verbose=options.verbose, **kw)
     except cp.error.SolverError as exc:
-        return Status.FAILED, f"CVXPY/Clarabel: {exc}"
+        text = str(exc).replace(", or solve with verbose=True for more information", "")
+        return Status.FAILED, f"CVXPY/Clarabel: {text} ({VERBOSE_ADVICE})"
     raw = prob.status
     if raw in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         return Status.CONVERGED, f"CVXPY: {raw}"
     if raw in (cp.INFEASIBLE, cp.UNBOUNDED, cp.INFEASIBLE_INACCURATE, cp.UNBOUNDED_INACCURATE):
         return Status.INFEASIBLE, f"CVXPY: {raw} (the force exceeds the limit load)"
-    return Status.FAILED, f"CVXPY: {raw}"
+    if raw == cp.USER_LIMIT:
+        stats = prob.solver_stats
+        used = stats.solve_time if stats is not None and stats.solve_time is not None else time.perf_counter() - t0
+        if options.time_limit is not None and used >= options.time_limit:
+            return Status.TIME_LIMIT, f"CVXPY: {raw} (time limit of {options.time_limit:g} s reached)"
+        return Status.MAX_ITERATIONS, f"CVXPY: {raw} (max_iter = {options.max_iter} interior-point iterations reached)"
+    return Status.FAILED, f"CVXPY: {raw} ({VERBOSE_ADVICE})"
 
 
 def _solver_stats(prob) -> int:
@@ -420,7 +438,9 @@ def _displacement_answer(nd: Discretization, var, cons):
 
 def solve_conic_cvxpy(disc: Discretization, options: ConicOptions = ConicOptions()) -> Solution:
     """(S) through CVXPY. CVXPY's equality duals enter its Lagrangian with a plus
-    sign, so ``u = -y_equilibrium`` and ``U = -y_force`` as for raw Clarabel."""
+    sign, so ``u = -y_equilibrium`` and ``U = -y_force`` as for raw Clarabel.
+    ``options``: :class:`ConicOptions`, a mapping of them or ``None``."""
+    options = check_inputs(disc, options, ConicOptions)
     timings: dict[str, float] = {"setup": 0.0, "solve": 0.0}
     scaled = elastic_first(_cvxpy_scaled(stress_program, _stress_answer, options, timings))
     return _finish(disc, "conic-cvxpy", scaled, timings, options)
@@ -428,7 +448,9 @@ def solve_conic_cvxpy(disc: Discretization, options: ConicOptions = ConicOptions
 
 def solve_conic_displacement(disc: Discretization, options: ConicOptions = ConicOptions()) -> Solution:
     """(D) through CVXPY: ``sigma = C (eps - p)``, ``xi = H kappa``, contact forces
-    are the multipliers of the contact inequalities."""
+    are the multipliers of the contact inequalities.
+    ``options``: :class:`ConicOptions`, a mapping of them or ``None``."""
+    options = check_inputs(disc, options, ConicOptions)
     timings: dict[str, float] = {"setup": 0.0, "solve": 0.0}
     scaled = _cvxpy_scaled(displacement_program, _displacement_answer, options, timings)
     return _finish(disc, "conic-displacement", scaled, timings, options)

@@ -35,6 +35,7 @@ from elastoplast.certificate.solution import (
     Status,
     make_solution,
 )
+from elastoplast.errors import expect
 from elastoplast.fem.discretize import Discretization, Units
 from elastoplast.fem.material import von_mises
 from elastoplast.options import SolverOptions
@@ -44,6 +45,16 @@ HISTORY_KEYS = ("iteration", "residuals", "kkt_worst", "U", "n_active", "n_plast
 
 #: a worst residual this many times above the first one means divergence
 DIVERGENCE_FACTOR = 1e8
+
+
+def check_inputs(disc: Any, options: Any, kind: type[SolverOptions]) -> Any:
+    """The checks at the top of every ``solve_*``, before any work: ``disc`` a
+    :class:`~elastoplast.fem.discretize.Discretization`, ``options`` an instance of
+    ``kind``, a mapping of its options or ``None`` (the defaults), each refused
+    naming the argument (:meth:`~elastoplast.options.SolverOptions.of`). Returns
+    the options as a ``kind``."""
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    return kind.of(options, "options")
 
 
 def within_tolerance(kkt: KKTResiduals, tol: float) -> bool:
@@ -144,12 +155,13 @@ class Monitor:
         s = self.units
         timings = {**timings, "total": self.elapsed}
         message = verdict.message + (f" ({note})" if note else "")
-        sol = make_solution(
-            self.disc, method=self.label, status=verdict.status, sigma=sigma * s.stress, xi=xi * s.stress,
-            u_free=u * s.displacement, U=U * s.displacement,
-            contact_force=None if contact_force is None else contact_force * s.force,
-            iterations=iterations, timings=timings, message=message, history=self.history,
-        )
+        with np.errstate(all="ignore"):  # a diverged candidate is certified as it is: NaN, without warnings
+            sol = make_solution(
+                self.disc, method=self.label, status=verdict.status, sigma=sigma * s.stress, xi=xi * s.stress,
+                u_free=u * s.displacement, U=U * s.displacement,
+                contact_force=None if contact_force is None else contact_force * s.force,
+                iterations=iterations, timings=timings, message=message, history=self.history,
+            )
         return confirm(sol, self.options.tol)
 
 

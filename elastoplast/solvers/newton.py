@@ -43,14 +43,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from elastoplast.certificate.kkt import energy_density
-from elastoplast.certificate.solution import Solution, Status
+from elastoplast.certificate.solution import Solution, Status, check_solution
 from elastoplast.fem.discretize import Discretization, nondimensionalize
 from elastoplast.fem.material import return_mapping
 from elastoplast.linalg.amg import contact_dofs, one_blas_thread
 from elastoplast.linalg.direct import pardiso_available
 from elastoplast.options import LOOSEST_TOL, TIGHTEST_TOL, SolverOptions, option
 from elastoplast.solvers.hessian import AMGHessian, DirectHessian, State
-from elastoplast.solvers.loop import Monitor, Verdict
+from elastoplast.solvers.loop import Monitor, Verdict, check_inputs
 
 
 @dataclass(frozen=True)
@@ -106,6 +106,10 @@ class NewtonOptions(SolverOptions):
 #: README.md): PARDISO 2.2 / AMG 5.1 s at 25.6k triangles, 7.1 / 42.9 s at 102k: direct
 #: factorisations fill in little in 2D, so "auto" stays direct there at any size here.
 NEWTON_AMG_FROM_ELEMENTS = {"pardiso": {2: 10_000_000, 3: 20_000}, "splu": {2: 10_000_000, 3: 20_000}}
+
+#: how to warm-start from a solution of the mesh before a refinement (what adapt does)
+PROLONG_ADVICE = ("interpolate its displacements onto this mesh with ep.prolong_p1: "
+                  "dataclasses.replace(sol, u=ep.prolong_p1(state, sol.u)), state from ep.refine")
 
 
 # ----------------------------------------------------------------------------
@@ -296,7 +300,21 @@ def solve_newton(disc: Discretization, options: NewtonOptions = NewtonOptions(),
     steps to ``max(tol, 1e-4)``. On the iterative path the linear solves are
     inexact, to the relative residual of :func:`forcing_term`; the stopping
     test is the certificate all the same.
+
+    ``options``: :class:`NewtonOptions`, a mapping of them or ``None``.
+    ``warm_start``: a :class:`~elastoplast.certificate.solution.Solution` whose
+    displacements ``u`` fit this mesh (only ``u`` and ``U`` are read; one of a coarser
+    mesh is interpolated with :func:`~elastoplast.mesh.refinement.prolong_p1`).
+    Anything else is refused naming the argument, before any work.
     """
+    options = check_inputs(disc, options, NewtonOptions)
+    if warm_start is not None:
+        check_solution(disc, warm_start, "warm_start", reads=("u",), start=True, advice=PROLONG_ADVICE)
+    with np.errstate(all="ignore"):  # a non-finite iterate is the monitor's DIVERGED, not a warning
+        return _solve_newton(disc, options, warm_start)
+
+
+def _solve_newton(disc: Discretization, options: NewtonOptions, warm_start: Solution | None) -> Solution:
     t_start = time.perf_counter()
     timings = {"setup": 0.0, "assembly": 0.0, "factorization": 0.0, "solve": 0.0, "line_search": 0.0, "certificate": 0.0}
     nd, units = nondimensionalize(disc)

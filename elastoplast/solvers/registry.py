@@ -14,10 +14,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
-from elastoplast.certificate.solution import Solution
+from elastoplast.certificate.solution import Solution, within_small_strains
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
-from elastoplast.fem.locking import check_perfect_plasticity
+from elastoplast.fem.locking import check_hardening_carries_load, check_perfect_plasticity
 from elastoplast.options import SolverOptions
 from elastoplast.solvers.accelerated import FastOptions, solve_accelerated
 from elastoplast.solvers.conic import (
@@ -78,14 +78,17 @@ MAX_PRESSURE_OVER_E = 1e3
 def check_solvable(disc: Discretization, method: str, options: SolverOptions | None = None) -> None:
     """Refuse, before any work, a problem ``method`` cannot answer faithfully
     (with ``options``, also options that do not suit the problem): perfect
-    plasticity on a mesh that locks, an absurd force, a mesh too large for the
-    conic reference."""
+    plasticity on a mesh that locks, an absurd force, a hardening that cannot
+    carry the force within small strains on a mesh that locks
+    (:func:`~elastoplast.fem.locking.check_hardening_carries_load`), a mesh too
+    large for the conic reference."""
     check_perfect_plasticity(disc)
     area = float(disc.contact_area.sum())
     if area > 0 and disc.force / area > MAX_PRESSURE_OVER_E * disc.material.E:
         raise InputError("load.force", f"{disc.force:g} over the contact zone's area {area:g} is a mean pressure of "
                                        f"{disc.force / area:.3g}, above {MAX_PRESSURE_OVER_E:g} E: far outside small "
                                        "strains")
+    check_hardening_carries_load(disc)
     limit = CONIC_MAX_ELEMENTS[disc.dim]
     if method.startswith("conic") and disc.n_elements > limit:
         fast = [m for m in METHODS if not m.startswith("conic")]
@@ -130,11 +133,13 @@ def solver_settings(section: Mapping[str, Any], prefix: str = "solver") -> tuple
 def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOptions | None = None,
           **values: Any) -> Solution:
     """Solve (2.1) by ``method`` (a key of :data:`METHODS`), with options given
-    either as an options object or as keywords (not both)."""
+    either as an options object or as keywords (not both). Whatever the method, an
+    answer whose strains leave the small-strain model is not ``converged``
+    (:func:`~elastoplast.certificate.solution.within_small_strains`)."""
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     if options is not None and values:
         raise InputError("options", "give an options object or keyword options, not both")
     m = get_method(method)
     opts = method_options(method, options if options is not None else values)
     check_solvable(disc, m.name, opts)
-    return m.run(disc, opts)
+    return within_small_strains(disc, m.run(disc, opts))

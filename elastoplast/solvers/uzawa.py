@@ -30,18 +30,19 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from elastoplast.certificate.solution import Solution
+from elastoplast.certificate.solution import Solution, check_solution
 from elastoplast.errors import InputError
 from elastoplast.fem.discretize import Discretization, Units, nondimensionalize
 from elastoplast.fem.material import Material, return_mapping
 from elastoplast.linalg.direct import FACTORIZATIONS
 from elastoplast.options import MAX_ITER_CEILING, SolverOptions, option
+from elastoplast.errors import short_repr
 from elastoplast.solvers.contact import (
     iterative_context,
     metric_projection,
     projection_note,
 )
-from elastoplast.solvers.loop import DIVERGENCE_FACTOR, Monitor
+from elastoplast.solvers.loop import DIVERGENCE_FACTOR, Monitor, check_inputs
 
 # ----------------------------------------------------------------------------
 # the step rho
@@ -86,6 +87,12 @@ def metric_matrix(disc: Discretization) -> sp.csc_matrix:
     return disc.weighted_gram(np.eye(disc.k)).tocsc()
 
 
+#: admitted ``rigid_weight``, in the problem's units: on the 2D cylinder (20 x 10) 1e-6 and 1
+#: converge in 20 and 49 iterations, 1e-12 and 1e6 stop at max_iter; beyond these bounds the
+#: metric's V term is lost to round-off (and 1/w overflows below about 1e-308)
+RIGID_WEIGHT_RANGE = (1e-12, 1e12)
+
+
 @dataclass(frozen=True)
 class UzawaOptions(SolverOptions):
     """Settings of :func:`solve_uzawa` (``tol``, ``max_iter``, ``time_limit``,
@@ -120,10 +127,11 @@ class UzawaOptions(SolverOptions):
     #: weight w of the rigid body's displacement in the metric ``|eps(v)|^2 + w V^2``,
     #: in the problem's units (length^(d-2)); None: automatic (:func:`contact_operators`);
     #: 1.0 is the paper's literal metric
-    rigid_weight: float | None = option(None, float, "weight of V in the metric (none: automatic)", lo=0.0,
-                                        lo_open=True, none=True)
+    rigid_weight: float | None = option(None, float, "weight of V in the metric (none: automatic)",
+                                        lo=RIGID_WEIGHT_RANGE[0], hi=RIGID_WEIGHT_RANGE[1], none=True)
+    #: 1 at least: below, the first residual itself would count as divergence
     divergence_factor: float = option(DIVERGENCE_FACTOR, float, "a residual this many times above the first "
-                                      "one means divergence", lo=0.0, lo_open=True)
+                                      "one means divergence", lo=1.0)
     max_check_interval: int = option(10, int, "most iterations between checks when check_every is automatic",
                                      lo=1, hi=1000)
 
@@ -155,14 +163,17 @@ def project_stresses(material: Material, eps: np.ndarray) -> tuple[np.ndarray, n
 
 def _initial_point(disc: Discretization, nd: Discretization, units: Units, options: UzawaOptions, rho_nd: float):
     """``(u, U, lam)`` in scaled units: zero, or the warm start's values."""
-    init = options.initial
+    init = options.initial  # checked against disc by solve_uzawa
     if init is None:
         return np.zeros(nd.n_free), 0.0, None
     u = disc.free_displacement(init.u) / units.displacement
-    if u.size != nd.n_free or init.contact_force.size != nd.n_contact:
-        raise InputError("initial", "the warm start comes from another discretisation (sizes differ)")
     lam = rho_nd * np.maximum(init.contact_force, 0.0) / units.force
     return u, init.U / units.displacement, lam
+
+
+#: what to do with a solution Uzawa cannot start from
+WARM_START_ADVICE = ("Uzawa's warm start reads the contact forces too: give a Solution of this discretisation "
+                     "(any force), or warm-start solve_newton from one interpolated with ep.prolong_p1")
 
 
 def _check_interval(options: UzawaOptions, t_certificate: float, t_iteration: float) -> int:
@@ -181,8 +192,17 @@ def solve_uzawa(disc: Discretization, options: UzawaOptions = UzawaOptions()) ->
     zero by construction) and, unless :class:`~elastoplast.solvers.loop.Monitor`
     says stop, step (ii) gives ``u^{n+1}``. The answer is the last candidate,
     with its true residuals, whatever the status.
+
+    ``options``: :class:`UzawaOptions`, a mapping of them or ``None``; its
+    ``initial`` must be a solution of this discretisation (it reads ``u`` and the
+    contact forces). Anything else is refused naming it, before any work.
     """
-    with iterative_context(disc, options.factorization):
+    options = check_inputs(disc, options, UzawaOptions)
+    if options.initial is not None:
+        check_solution(disc, options.initial, "initial", reads=("u", "contact_force"), start=True,
+                       advice=WARM_START_ADVICE)
+    # a non-finite iterate is the monitor's DIVERGED, not a floating-point warning
+    with iterative_context(disc, options.factorization), np.errstate(all="ignore"):
         return _solve_uzawa(disc, options)
 
 
@@ -231,13 +251,27 @@ def load_sweep(disc: Discretization, forces: Sequence[float], options: UzawaOpti
 
     Hencky's law is path independent, so the order changes the speed, not the
     answers. ``options.initial`` (if any) warm-starts the first solve.
+    ``forces``: a sequence (list, tuple, 1-D array) of finite numbers > 0, each
+    checked like ``load.force`` (errors name ``forces[i]``), all before the first solve.
     """
     from dataclasses import replace
 
+    options = check_inputs(disc, options, UzawaOptions)
+    if isinstance(forces, np.ndarray) and forces.ndim == 1:
+        forces = forces.tolist()
+    if isinstance(forces, (str, bytes)) or not isinstance(forces, Sequence):
+        what = f"an array of shape {forces.shape}" if isinstance(forces, np.ndarray) else short_repr(forces)
+        raise InputError("forces", f"expected a sequence of forces, e.g. [0.5 * F, F], got {what}")
+    loads = []
+    for i, F in enumerate(forces):
+        try:
+            loads.append(disc.with_force(F))
+        except InputError as exc:
+            raise InputError(f"forces[{i}]", exc.message) from None
     out: list[Solution] = []
     previous = options.initial
-    for F in forces:
-        sol = solve_uzawa(disc.with_force(F), replace(options, initial=previous))
+    for load in loads:
+        sol = solve_uzawa(load, replace(options, initial=previous))
         out.append(sol)
         previous = sol
     return out

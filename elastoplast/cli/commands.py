@@ -1,0 +1,379 @@
+"""The commands of the command line, one function each: check the input, run, print one summary line, return the exit code."""
+
+from __future__ import annotations
+import argparse
+import contextlib
+import math
+import sys
+import tomllib
+import warnings
+from importlib import resources
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK
+from elastoplast.errors import FIELD_WIDTH, InputError, elide
+
+
+
+
+
+#: command-line shorthands for solver options: flag -> option name
+OPTION_FLAGS = {"--tol": "tol", "--max-iter": "max_iter", "--rho": "rho", "--time-limit": "time_limit"}
+
+
+def default_problem_path() -> Path:
+    """The built-in default problem shipped with the package."""
+    return Path(str(resources.files("elastoplast") / "data" / "default.toml"))
+
+
+def _parse_value(text: str) -> Any:
+    """A TOML value (``1e-8``, ``true``, ``"splu"``), or the bare text as a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def command_line_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The solver options given on the command line, keyed by option name."""
+    options: dict[str, Any] = {}
+    for item in args.option:
+        name, sep, value = item.partition("=")
+        name = name.strip().replace("-", "_")
+        if not sep or not name:
+            raise InputError("--option", f"expected NAME=VALUE, got {item!r}")
+        options[name] = _parse_value(value.strip())
+    for flag, name in OPTION_FLAGS.items():
+        value = getattr(args, name)
+        if value is not None:
+            options[name] = value
+    return options
+
+
+def _flag_names(exc: InputError) -> InputError:
+    """Name a command-line option by its flag (``--max-iter``, not ``max_iter``)."""
+    flags = {name: flag for flag, name in OPTION_FLAGS.items()}
+    return InputError(flags.get(exc.field, f"--option {exc.field}"), exc.message)
+
+
+def _setup(args: argparse.Namespace, solver: bool = True):
+    """What every command on one problem starts with: the problem file (or the
+    built-in default), its ``[solver]`` table and the command-line options, all
+    checked, and ``--out`` checked, before any work. Returns ``(path, data,
+    method, options)``; with ``solver`` False (``limit``, and ``adapt``, which
+    reads the table itself) the ``[solver]`` table is not read and both are None."""
+    from elastoplast.io.output import check_output_dir
+    from elastoplast.problem.definition import read_toml
+    from elastoplast.solvers.registry import method_options
+
+    path = Path(args.problem) if args.problem else default_problem_path()
+    data = read_toml(path)
+    method = opts = None
+    if solver:
+        method, options = _file_solver(data.get("solver", {}), args.method)
+        given = command_line_options(args)
+        try:
+            method_options(method, given)  # the flags alone, named as flags
+        except InputError as exc:
+            raise _flag_names(exc) from None
+        opts = method_options(method, {**options, **given, "progress": not args.quiet}, prefix="solver.")
+    check_output_dir(args.out, "--out")
+    return path, data, method, opts
+
+
+def _file_solver(table: Any, flag: str | None) -> tuple[str, dict[str, Any]]:
+    """The method and the file's ``[solver]`` options for it, checked and named as
+    written (``solver.tol``). ``flag``, the ``--method`` given, wins over the file's
+    method; when it names another method, the file's options that method does not
+    have are dropped, each with a note on stderr, and the others still apply."""
+    from elastoplast.solvers.registry import DEFAULT_METHOD, get_method, solver_settings
+
+    if flag is None or not isinstance(table, Mapping):
+        return solver_settings(table)  # a [solver] that is no table is refused here
+    method = get_method(flag, "--method")
+    if table.get("method", DEFAULT_METHOD) != method.name:
+        get_method(table.get("method", DEFAULT_METHOD), "solver.method")  # the file's own method, checked
+        specs = method.options.specs()
+        for key in table:
+            if key != "method" and key not in specs:
+                print(f"note: solver.{elide(key, FIELD_WIDTH)}: not an option of {method.name} (--method), ignored",
+                      file=sys.stderr)
+        table = {k: v for k, v in table.items() if k in specs}
+    return solver_settings({**table, "method": method.name})
+
+
+#: the names the library gives the command line's arguments (run_campaign, compare), by command
+_CLI_NAMES = {
+    "campaign": {"out": "--out", "store": "--out", "workers": "--workers", "scheduler": "--scheduler"},
+    "compare": {"store": "STORE", "out": "--out", "reference_method": "--reference-method", "workers": "--workers",
+                "scheduler": "--scheduler"},
+    "export": {"out": "--out", "format": "--format", "form": "--form", "energy": "--energy"},
+}
+
+
+@contextlib.contextmanager
+def _named_as_flags(command: str) -> Iterator[None]:
+    """Re-raise an InputError naming a library argument (``out``, ``store``,
+    ``reference_method``, ``workers``, ``scheduler``) under the command line's name for it."""
+    try:
+        yield
+    except InputError as exc:
+        names = _CLI_NAMES[command]
+        if exc.field in names:
+            raise InputError(names[exc.field], exc.message) from None
+        raise
+
+
+def _discretize(path: Path, data: dict, quiet: bool, what: str):
+    from elastoplast.fem.discretize import discretize
+    from elastoplast.problem.definition import problem_from_dict
+
+    disc = discretize(problem_from_dict(data, base_dir=path.parent))
+    if not quiet:
+        print(f"{path.name}: {disc.dim}D, {disc.n_elements} elements, {disc.mesh.n_nodes} nodes, "
+              f"{disc.n_contact} contact nodes; {what}", file=sys.stderr)
+    return disc
+
+
+def _solve(args: argparse.Namespace) -> int:
+    from elastoplast.cli.results import write_results
+    from elastoplast.solvers.registry import solve
+
+    path, data, method, opts = _setup(args)
+    disc = _discretize(path, data, args.quiet, f"method {method}")
+    sol = solve(disc, method, opts)
+    data = write_results(args.out, disc, sol, field="--out")
+    print(f"{sol.status.value}: U = {_figure(sol.U, '.6g')}, max contact pressure = "
+          f"{_figure(data['max_contact_pressure'], '.6g')}, contact radius = {_figure(data['contact_radius'], '.4g')}, "
+          f"plastic volume = {_figure(100 * data['plastic_volume_fraction'], '.2f')}%")
+    print(f"KKT worst residual {_figure(sol.kkt.worst, '.2e')}, duality gap {_figure(sol.duality_gap, '.2e')}, "
+          f"{sol.iterations} iterations, {sol.time_s:.2f} s -> {Path(args.out) / 'summary.json'}")
+    if not sol.converged:
+        print(f"not converged: {sol.message}", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
+def _figure(value: Any, spec: str) -> str:
+    """A printed figure; ``n/a`` for one that is not a finite number (a diverged run's NaN)."""
+    try:
+        return format(value, spec) if math.isfinite(value) else "n/a"
+    except (TypeError, ValueError):
+        return "n/a"
+
+
+def _bounds(args: argparse.Namespace) -> int:
+    from elastoplast.bounds.bracket import certified_bounds, gap_fields
+    from elastoplast.bounds.lower import (
+        SEQUENCE_MEMORY_FACTOR,
+        LowerBoundOptions,
+        check_lower_bound_size,
+    )
+    from elastoplast.certificate.solution import Status
+    from elastoplast.cli.results import write_results
+    from elastoplast.solvers.registry import check_solvable, solve
+
+    path, data, method, opts = _setup(args)
+    disc = _discretize(path, data, args.quiet, f"P1 solution by {method}, then the bounds")
+    # before the solve; the U bracket runs two more programs in this process
+    check_lower_bound_size(disc, LowerBoundOptions(), factor=1.0 if args.no_bracket else SEQUENCE_MEMORY_FACTOR)
+    check_solvable(disc, method, opts)
+    sol = solve(disc, method, opts)
+    if sol.status is Status.INFEASIBLE:
+        raise InputError("load.force", f"{disc.force:g} is above the limit load ({sol.message}): the problem has "
+                                       "no solution to bound; 'elastoplast limit' brackets the limit load")
+    if not sol.converged:
+        print(f"warning: the P1 solution did not converge ({sol.message}); its upper bound stays valid, only looser",
+              file=sys.stderr)
+    report = certified_bounds(disc, sol, method, bracket=not args.no_bracket, options=opts)
+    b = report.bounds
+    write_results(args.out, disc, sol, extra=report.as_dict(), field="--out", **gap_fields(disc, b))
+    bracket = "" if args.no_bracket else (f"; U in [{_figure(report.U_lower, '.6g')}, "
+                                          f"{_figure(report.U_upper, '.6g')}]")
+    print(f"energy in [{_figure(b.energy_lower, '.8g')}, {_figure(b.energy_upper, '.8g')}] (relative gap "
+          f"{_figure(b.energy_gap_rel, '.2e')}){bracket} (discrete U = {_figure(sol.U, '.6g')}); stress error <= "
+          f"{_figure(b.stress_error_bound, '.4g')} ({_figure(100 * b.stress_error_bound_rel, '.2f')}%); "
+          f"{'certified' if report.certified else 'NOT certified'} -> {Path(args.out) / 'summary.json'}")
+    if not report.certified:
+        print(f"not certified: upper: {report.upper.message}; lower: {report.lower.message}", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
+def _limit(args: argparse.Namespace) -> int:
+    from elastoplast.bounds.limit import LimitOptions, limit_load
+    from elastoplast.bounds.lower import LowerBoundOptions
+    from elastoplast.io.output import json_text, staged_output
+
+    path, data, _, _ = _setup(args, solver=False)  # the limit load has no [solver]: its programs are Clarabel's
+    warnings.filterwarnings("ignore", message=r".*hardening = 0 is perfect plasticity")  # what 'limit' is for
+    given = {k: v for k, v in (("order", args.order), ("time_limit", args.time_limit)) if v is not None}
+    try:
+        options = LimitOptions.build(given)
+    except InputError as exc:
+        raise InputError(f"--{exc.field.replace('_', '-')}", exc.message) from None
+    disc = _discretize(path, data, args.quiet, "limit load bracket (H = 0)")
+    bracket = limit_load(disc, options, LowerBoundOptions(time_limit=options.time_limit))
+    with staged_output(args.out, "--out") as tmp:
+        from elastoplast.io.provenance import stamp
+
+        (tmp / "summary.json").write_text(json_text({**bracket.as_dict(), "provenance": stamp()}))
+    print(f"{bracket.F_lower:.6g} <= F_c <= {bracket.F_upper:.6g} (ratio {bracket.ratio:.4f}); "
+          f"{'certified' if bracket.certified else 'NOT certified'} -> {Path(args.out) / 'summary.json'}")
+    if bracket.message:
+        print(bracket.message, file=sys.stderr)
+    return EXIT_OK if bracket.certified else EXIT_NOT_CONVERGED
+
+
+def _adapt(args: argparse.Namespace) -> int:
+    from elastoplast.adapt.loop import check_adaptable
+    from elastoplast.adapt.records import AdaptOptions
+    from elastoplast.cli.adapt import run_adapt_command
+    from elastoplast.solvers.registry import get_method
+
+    path, data, _, _ = _setup(args, solver=False)
+    table = data.get("solver", {})
+    if not isinstance(table, Mapping):
+        raise InputError("solver", f"must be a table, got {type(table).__name__}")
+    # of the file's [solver] table, the method and the P1 tolerance apply; nothing is dropped silently
+    unused = [f"solver.{elide(k, FIELD_WIDTH)}" for k in table if k not in ("method", "tol")]
+    if unused:
+        warnings.warn(f"{', '.join(unused)}: not used by adapt, which sets its own P1 solves (of [solver], method "
+                      "and tol apply)")
+    if "method" in table:
+        get_method(table["method"], "solver.method")  # the file's, checked even where --method wins
+    if args.method is not None:
+        method, method_field = get_method(args.method, "--method").name, "--method"
+    else:  # default Newton: the fastest P1 solver (benchmarks/methods)
+        method, method_field = table.get("method", AdaptOptions().method), "solver.method"
+    from_file = {"tol": table["tol"]} if "tol" in table else {}
+    AdaptOptions.build(from_file, prefix="solver.")  # the range of adapt's P1 tolerance, named as written
+    given = {k: v for k, v in (("rtol", args.rtol), ("theta", args.theta), ("max_elements", args.max_elements),
+                               ("time_limit", args.time_limit), ("bracket", args.bracket)) if v is not None}
+    given = {**from_file, **given}
+    if args.no_uniform:
+        given["compare_uniform"] = False
+    try:
+        options = AdaptOptions.build({**given, "method": method, "progress": not args.quiet})
+    except InputError as exc:
+        field = method_field if exc.field == "method" else f"--{exc.field.replace('_', '-')}"
+        raise InputError(field, exc.message) from None
+    disc = _discretize(path, data, args.quiet, f"adaptive refinement to rtol {options.rtol:g}")
+    check_adaptable(disc.problem)
+    return EXIT_OK if run_adapt_command(disc.problem, options, args.out) else EXIT_NOT_CONVERGED
+
+
+def _campaign(args: argparse.Namespace) -> int:
+    from elastoplast.cli.campaign import load_campaign, run_campaign
+    from elastoplast.io.store import Store
+
+    campaign = load_campaign(args.campaign)
+    with _named_as_flags("campaign"):
+        run = run_campaign(campaign, args.out, scheduler=args.scheduler, n_workers=args.workers,
+                           progress=not args.quiet, retry_failed=args.retry_failed)
+    ids = {c.case_id for c in campaign.cases}
+    statuses = [r["status"] for r in Store(args.out).rows() if r["id"] in ids]
+    failed = sum(s != "converged" for s in statuses)
+    print(f"{campaign.name}: {len(ids)} cases, {len(run.statuses)} run, {len(run.skipped)} already stored; "
+          f"{len(statuses) - failed} converged, {failed} failed -> {Path(args.out) / 'index.sqlite'}")
+    if campaign.n_duplicates:
+        print(f"note: {campaign.n_duplicates} sweep point(s) resolved to the same input as an earlier one", file=sys.stderr)
+    for case_id, status in run.failed.items():
+        print(f"failed: {case_id[:12]} {status}: {Store(args.out).row(case_id)['error']}", file=sys.stderr)
+    return EXIT_OK if failed == 0 and len(statuses) == len(ids) else EXIT_NOT_CONVERGED
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from elastoplast.cli.compare import compare
+    from elastoplast.solvers.registry import method_options
+
+    options = command_line_options(args)
+    try:
+        method_options(args.method, options)
+    except InputError as exc:
+        raise _flag_names(exc) if exc.field != "method" else InputError("--method", exc.message) from None
+    with _named_as_flags("compare"):
+        report = compare(args.store, args.method, options=options, reference_method=args.reference_method,
+                         out=args.out, scheduler=args.scheduler, n_workers=args.workers, progress=not args.quiet)
+    print(report.markdown(), end="")
+    out = Path(args.out) if args.out else Path(args.store) / f"compare-{report.method}"
+    print(f"-> {out / 'report.md'}, {out / 'compare.png'}, {out / 'compare.json'}", file=sys.stderr)
+    return EXIT_OK if report.summary["n_converged"] == report.summary["n_cases"] else EXIT_NOT_CONVERGED
+
+
+def _options(args: argparse.Namespace) -> int:
+    """``elastoplast options [METHOD]``: every option behind ``--option NAME=VALUE``,
+    read from the options classes (their type, default and admitted range)."""
+    import dataclasses
+
+    from elastoplast.solvers.registry import METHODS, get_method
+
+    chosen = [get_method(args.method, "METHOD")] if args.method is not None else list(METHODS.values())
+    by_class: dict[type, list] = {}
+    for m in chosen:  # the conic methods share one class: listed once
+        by_class.setdefault(m.options, []).append(m)
+    print("Set with --option NAME=VALUE (the value in TOML syntax), a [solver] table or a campaign axis "
+          "\"solver.NAME\"; --tol, --max-iter, --rho and --time-limit are shorthands.")
+    for cls, methods in by_class.items():
+        defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+        rows = [("option", "type", "default", "admitted", "meaning")]
+        rows += [(name, _kind_text(spec), _toml_text(defaults[name]), _range_text(spec), spec.doc)
+                 for name, spec in cls.specs().items()]
+        widths = [max(len(r[i]) for r in rows) for i in range(4)]
+        print(f"\n{', '.join(m.name for m in methods)} ({cls.__name__}): {'; '.join(m.summary for m in methods)}")
+        for row in rows:
+            print("  " + "  ".join(cell.ljust(w) for cell, w in zip(row, widths)) + "  " + row[4])
+    return EXIT_OK
+
+
+def _kind_text(spec) -> str:
+    names = {float: "number", int: "integer", bool: "boolean", str: "string"}
+    return names.get(spec.kind, f"{spec.kind.__name__} (Python only)")
+
+
+def _toml_text(value: Any) -> str:
+    """``value`` as it is written after ``--option NAME=``; ``none`` for None."""
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _range_text(spec) -> str:
+    """What an option admits: its choices, or its interval (``(0, inf)``)."""
+    if spec.choices is not None:
+        return " | ".join(f'"{c}"' for c in spec.choices)
+    if spec.kind is bool:
+        return "true | false"
+    if spec.kind not in (int, float):
+        return "-"
+    text = (lambda v: str(int(v))) if spec.kind is int else (lambda v: f"{v:g}")
+    lo = "(-inf" if spec.lo is None else f"{'(' if spec.lo_open else '['}{text(spec.lo)}"
+    hi = "inf)" if spec.hi is None else f"{text(spec.hi)}]"
+    return f"{lo}, {hi}"
+
+
+def _check(args: argparse.Namespace) -> int:
+    from elastoplast.cli.check import run_check
+
+    return run_check(args.problem, args.answer, tol=args.tol, bounds=args.bounds, out=args.out, quiet=args.quiet)
+
+
+def _export(args: argparse.Namespace) -> int:
+    from elastoplast.io.export import export
+    from elastoplast.problem.definition import read_toml
+
+    path = Path(args.problem) if args.problem else default_problem_path()
+    data = read_toml(path)
+    disc = _discretize(path, data, args.quiet, f"export of ({args.form}) as {args.format}")
+    with _named_as_flags("export"):
+        info = export(disc, args.out, format=args.format, form=args.form, energy=args.energy)
+    print(info.line())
+    return EXIT_OK
+
+
+COMMANDS = {"solve": _solve, "check": _check, "bounds": _bounds, "limit": _limit, "adapt": _adapt, "campaign": _campaign,
+            "compare": _compare, "options": _options, "export": _export}

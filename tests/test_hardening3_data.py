@@ -20,7 +20,6 @@ from elastoplast.bounds.lower import solve_lower_bound
 from elastoplast.bounds.repair import project_affine
 from elastoplast.bounds.upper import GAP_FLOOR, best_upper_bound
 from elastoplast.certificate.solution import Status, largest_strain, make_solution
-from elastoplast.cli.commands import default_problem_path
 from elastoplast.cli.main import main
 from elastoplast.errors import InputError
 from elastoplast.fem.discretize import MIN_HARDENING_OVER_E
@@ -370,3 +369,22 @@ def test_problem_from_dict_without_a_base_dir():
     data = small_cylinder()
     assert quietly(lambda: ep.problem_from_dict(data, base_dir=None)).dim == 2
     assert refused(lambda: ep.problem_from_dict(data, base_dir=3)).field == "base_dir"
+
+
+def test_contact_radius_of_an_obstacle_centred_outside_the_zone(tmp_path):
+    """Found in the third pass: a cylinder of radius 4000 centred at x = 3000, beside a
+    40 mm block, touches near the zone's edge; the contact radius was measured from
+    the far centre (2998 for a zone 8 mm wide). It is now the half-extent of the
+    active set, so never more than half the contact zone's width."""
+    data = small_cylinder()
+    data["obstacle"] = {"shape": "cylinder", "radius": 4000.0, "center": [3000.0]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the obstacle does not touch before loading: said in a warning
+        disc = build(data)
+    sol = ep.solve(disc, "conic")
+    xp = disc.mesh.points[disc.contact_nodes, 0]
+    assert sol.converged and np.any(sol.active)
+    width = float(np.ptp(xp))
+    radius = ep.summary(disc, sol)["contact_radius"]
+    assert 0.0 <= radius <= 0.5 * width
+    assert radius == pytest.approx(0.5 * float(np.ptp(xp[sol.active])))

@@ -367,3 +367,28 @@ def test_relative_mesh_files_are_read_from_the_file_they_are_written_in(tmp_path
     with pytest.raises(InputError) as info:
         load_campaign(campaign)
     assert info.value.field == "mesh.file", info.value
+
+
+@pytest.mark.parametrize("command", ["solve", "campaign"])
+def test_a_dotdot_through_a_missing_folder_never_replaces_a_foreign_folder(problem_file, tmp_path, capsys,
+                                                                             monkeypatch, command):
+    """Found in the third pass: `--out nosuch/../victim` was judged as a new folder (nosuch did not
+    exist), then resolved to victim once nosuch was created, and victim with the user's files was
+    replaced (solve) or filled with a store (campaign); a refused campaign then removed it whole.
+    The path is now resolved before it is judged: refused, and victim left as it was."""
+    monkeypatch.chdir(tmp_path)
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / "thesis.tex").write_text("precious")
+    target = "nosuch/../victim"
+    if command == "solve":
+        code, _, err = run(capsys, "solve", problem_file, "--out", target, "--quiet")
+    else:
+        code, _, err = run(capsys, "campaign", PROBLEMS / "campaign_2d.toml", "--out", target, "--quiet",
+                            "--workers", "1")
+    assert code == 2 and err[-1].startswith("error: --out:"), err
+    assert sorted(p.name for p in victim.iterdir()) == ["thesis.tex"]
+    assert (victim / "thesis.tex").read_text() == "precious"
+    code, _, err = run(capsys, "solve", problem_file, "--out", "sub/../.", "--quiet")
+    assert code == 2 and "working directory" in err[-1], err
+    assert not (tmp_path / "sub").exists()

@@ -256,7 +256,6 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
     import time
 
     from elastoplast.bounds.lower import LowerBoundOptions, solve_lower_bound
-    from elastoplast.certificate.solution import Solution
     from elastoplast.solvers.registry import solve
 
     expect(disc, Discretization, "disc", "ep.discretize(problem)")

@@ -67,6 +67,7 @@ from elastoplast.io.store import (
 from elastoplast.limits import as_path
 from elastoplast.problem.definition import SECTIONS, problem_from_dict, read_toml
 from elastoplast.solvers.registry import check_solvable, method_options, solver_settings
+from elastoplast.io.store import STORE_FILES
 
 # ----------------------------------------------------------------------------
 # the campaign file
@@ -511,7 +512,7 @@ def run_campaign(campaign: Campaign, out: str | Path, *, scheduler: str | None =
     try:
         return _run(campaign, store, scheduler, client, n_workers, progress, retry_failed)
     except InputError:  # e.g. no scheduler at the address: leave no empty store behind
-        if created and not store.rows():
+        if created and not store.rows() and {p.name for p in store.path.iterdir()} <= STORE_FILES:
             shutil.rmtree(store.path, ignore_errors=True)
         raise
 

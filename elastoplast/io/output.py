@@ -128,7 +128,8 @@ def check_output_dir(out_dir: str | Path, field: str = "out") -> Path:
     """
     cwd = Path.cwd().resolve()
     with path_errors(out_dir, field):
-        out = Path(out_dir).expanduser().absolute()
+        # resolved before any test: 'nosuch/../DIR' is DIR once nosuch exists, and must be judged as DIR
+        out = Path(out_dir).expanduser().resolve()
         exists, is_dir = out.exists(), out.is_dir()
         names = sorted(p.name for p in out.iterdir()) if is_dir else []
         inside = exists and (out.resolve() == cwd or out.resolve() in cwd.parents)
@@ -191,6 +192,10 @@ def staged_output(out_dir: str | Path, field: str = "out") -> Iterator[Path]:
         yield tmp
         (tmp / OUTPUT_MARKER).write_text(json_text({"provenance": stamp()}))
         if out.exists():
+            ours = {p.name for p in out.iterdir()}  # judged again: the folder may have changed since the check
+            if ours and OUTPUT_MARKER not in ours and not ours <= LEGACY_OUTPUTS:
+                raise InputError(field, f"{shown(out_dir)} now holds files elastoplast did not write; nothing "
+                                        "was replaced")
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
             os.replace(out, old / out.name)
             os.replace(tmp, out)

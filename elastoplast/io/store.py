@@ -95,6 +95,10 @@ _COLUMNS = [
 ]
 COLUMNS = tuple(name for name, _ in _COLUMNS)
 
+#: what a store folder holds: its index, its case folders and its lock
+INDEX_NAME = "index.sqlite"
+STORE_FILES = frozenset({INDEX_NAME, "cases", ".lock"})
+
 
 # ----------------------------------------------------------------------------
 # the resolved input and its hash
@@ -281,11 +285,11 @@ class Store:
     :meth:`writer` holds an exclusive lock for one campaign at a time."""
 
     def __init__(self, path: str | Path):
-        self.path = Path(path)
+        self.path = Path(path).expanduser().resolve()  # 'nosuch/../DIR' is DIR, judged and written as DIR
 
     @property
     def index_path(self) -> Path:
-        return self.path / "index.sqlite"
+        return self.path / INDEX_NAME
 
     def case_dir(self, case_id: str) -> Path:
         return self.path / "cases" / case_id
@@ -401,7 +405,7 @@ class Store:
             names = {p.name for p in self.path.iterdir()} if is_dir else set()
         if exists and not is_dir:
             raise InputError("out", f"{shown(self.path)} exists and is not a folder")
-        if is_dir and not self.exists() and names - {"cases", ".lock"}:
+        if is_dir and not self.exists() and names - (STORE_FILES - {INDEX_NAME}):
             raise InputError("out", f"{shown(self.path)} is not empty and holds no campaign store (no index.sqlite)")
         try:
             (self.path / "cases").mkdir(parents=True, exist_ok=True)

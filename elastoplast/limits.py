@@ -33,8 +33,13 @@ def shown(path: Path) -> str:
 def as_path(path, field: str, what: str) -> Path:
     """``path`` as a :class:`Path`, or an InputError naming ``field`` when it is no path at all."""
     if not isinstance(path, (str, os.PathLike)):
-        raise InputError(field, f"expected a path to a {what}, got {type(path).__name__}")
+        raise InputError(field, f"expected a path to {a_or_an(what)}, got {type(path).__name__}")
     return Path(path)
+
+
+def a_or_an(word: str) -> str:
+    """``word`` with its indefinite article: ``a problem file``, ``an answer file``."""
+    return f"{'an' if word[:1].lower() in 'aeiou' else 'a'} {word}"
 
 
 def check_input_file(path: Path, field: str, what: str) -> int:
@@ -52,9 +57,10 @@ def check_input_file(path: Path, field: str, what: str) -> int:
     except OSError as exc:
         raise InputError(field, f"cannot access {what} {shown(path)}: {exc.strerror or exc}") from None
     if stat.S_ISDIR(st.st_mode):
-        raise InputError(field, f"{shown(path)} is a directory, not a {what}")
+        raise InputError(field, f"{shown(path)} is a directory, not {a_or_an(what)}")
     if not stat.S_ISREG(st.st_mode):
-        raise InputError(field, f"{shown(path)} is not a regular file (a device, pipe or socket cannot be a {what})")
+        raise InputError(field, f"{shown(path)} is not a regular file (a device, pipe or socket cannot be "
+                                f"{a_or_an(what)})")
     if not os.access(path, os.R_OK):
         raise InputError(field, f"{what} {shown(path)} cannot be read (permission denied)")
     if st.st_size == 0:
@@ -67,7 +73,7 @@ def read_bytes(path: Path, field: str, what: str, limit: int) -> bytes:
     size = check_input_file(path, field, what)
     if size > limit:
         raise InputError(field, f"{what} {path} has {format_bytes(size)}, more than the {format_bytes(limit)} "
-                                f"a {what} may have")
+                                f"{a_or_an(what)} may have")
     try:
         with open(path, "rb") as fh:
             return fh.read(limit + 1)

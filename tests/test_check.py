@@ -4,7 +4,10 @@
 from __future__ import annotations
 
 import json
+import pickle
+import warnings
 from pathlib import Path
+from types import MappingProxyType
 
 import meshio
 import numpy as np
@@ -286,3 +289,170 @@ def test_through_main(case, tmp_path, capsys):
     assert main(["check", str(case["toml"]), str(good), "--out", "out", "--quiet"]) == 0
     assert (tmp_path / "out" / "summary.json").is_file()
     capsys.readouterr()
+
+
+# ----------------------------------------------------------------------------
+# (6) the adversarial pass: each input it found, refused or judged with a readable message
+# ----------------------------------------------------------------------------
+
+
+def vtu_of(path: Path, disc, u, U=None) -> Path:
+    """A VTU answer: the mesh's points and ``displacement``, field data U when given."""
+    points = np.column_stack([disc.mesh.points, np.zeros(disc.mesh.n_nodes)])
+    disp = np.column_stack([u, np.zeros(disc.mesh.n_nodes)])
+    meshio.write(path, meshio.Mesh(points, [("triangle", disc.mesh.cells)], point_data={"displacement": disp}))
+    if U is not None:
+        with_field_data_U(path, U)
+    return path
+
+
+def test_huge_summary_json_is_refused_unread(case, tmp_path):
+    folder = tmp_path / "s"
+    folder.mkdir()
+    vtu = vtu_of(folder / "solution.vtu", case["disc"], case["newton"].u)
+    with open(folder / "summary.json", "wb") as fh:  # sparse: 2 GiB on paper, nothing on disk
+        fh.truncate(2 * 2**30)
+    with pytest.raises(InputError, match=r"^ANSWER\.U: summary\.json .* has 2 GiB, more than the 4 MiB a "
+                                         r"summary\.json may have$"):
+        read_answer(vtu, case["disc"])
+
+
+@pytest.mark.parametrize("n_nodes, message", [
+    ('"861"', "n_nodes must be an integer (the node count of the solve's mesh), got '861'"),
+    ("true", "n_nodes must be an integer (the node count of the solve's mesh), got True"),
+    ("860", "belongs to a mesh of 860 nodes, not this problem's 861"),
+])
+def test_summary_json_n_nodes_must_be_an_integer(case, tmp_path, n_nodes, message):
+    vtu = vtu_of(tmp_path / "solution.vtu", case["disc"], case["newton"].u)
+    (tmp_path / "summary.json").write_text(f'{{"U": {case["newton"].U!r}, "n_nodes": {n_nodes}}}')
+    with pytest.raises(InputError) as info:
+        read_answer(vtu, case["disc"])
+    assert info.value.field == "ANSWER.U" and message in info.value.message
+
+
+def test_huge_finite_answer_is_refused_without_numpy_warnings(case, tmp_path, capsys):
+    u = case["newton"].u
+    huge = npz(tmp_path / "huge.npz", u=u * 0 + 1e300, U=1e300)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a numpy RuntimeWarning (overflow, invalid value) fails the test
+        with pytest.raises(InputError, match=r"^ANSWER\.u: values up to 1e\+300 overflow the strains \(the mesh is "
+                                             r"40 across, its shortest edge .*, E = 200000\)"):
+            run_check(case["toml"], huge)
+        with pytest.raises(InputError, match=r"^ANSWER\.sigma: values up to 1e\+300 overflow"):
+            certify_answer(case["disc"], {"u": u, "U": 0.0, "sigma": np.full((1600, 4), 1e300),
+                                          "xi": np.zeros(1600)}, 1e-6)
+        # large but below the overflow: judged, not certified, for the right reason
+        sol = certify_answer(case["disc"], read_answer(npz(tmp_path / "big.npz", u=u * 1e80, U=1e80), case["disc"]),
+                             1e-6)
+    assert not sol.converged and "non-finite" not in sol.message and "above tol" in sol.message
+    assert capsys.readouterr().out == ""
+    if WIRED:
+        assert main(["check", str(case["toml"]), str(huge)]) == 2
+        assert capsys.readouterr().err.strip().splitlines()[-1].startswith("error: ANSWER.u: values up to 1e+300")
+
+
+def test_out_holding_the_answer_is_refused(case, tmp_path, capsys):
+    assert main(["solve", str(case["toml"]), "--out", "s3", "--quiet"]) == 0
+    capsys.readouterr()
+    before = {p.name: p.read_bytes() for p in (tmp_path / "s3").iterdir()}
+    for out in ("s3", tmp_path / "s3", "s3/../s3"):
+        with pytest.raises(InputError, match=r"^--out: .* holds the answer .*solution\.vtu and the summary\.json "
+                                             r"beside it\), which the results would replace"):
+            run_check(case["toml"], "s3/solution.vtu", out=out)
+    assert {p.name: p.read_bytes() for p in (tmp_path / "s3").iterdir()} == before
+    assert capsys.readouterr().out == ""
+    if WIRED:
+        assert main(["check", str(case["toml"]), "s3/solution.vtu", "--out", "s3"]) == 2
+        assert {p.name: p.read_bytes() for p in (tmp_path / "s3").iterdir()} == before
+
+
+def test_content_decides_the_format(case, tmp_path, capsys):
+    s = case["newton"]
+    good = npz(tmp_path / "good.npz", u=s.u, U=s.U)
+    (tmp_path / "good.VTU").write_bytes(good.read_bytes())
+    assert run_check(case["toml"], tmp_path / "good.VTU", quiet=True) == 0
+    assert "good.VTU is an .npz (a zip archive) whatever its suffix says" in capsys.readouterr().err
+    vtu = vtu_of(tmp_path / "v.vtu", case["disc"], s.u, s.U)
+    (tmp_path / "answer.npz").write_bytes(vtu.read_bytes())
+    assert read_answer(tmp_path / "answer.npz", case["disc"])["format"] == "vtu"
+    (tmp_path / "text.vtu").write_text("displacement 1 2 3\n")
+    with pytest.raises(InputError, match=r"^ANSWER: cannot read .*text\.vtu as a VTU: it is not an XML file"):
+        read_answer(tmp_path / "text.vtu", case["disc"])
+    (tmp_path / "other.vtu").write_text('<?xml version="1.0"?>\n<VTKFile type="PolyData"></VTKFile>\n')
+    with pytest.raises(InputError, match=r"^ANSWER: cannot read .*other\.vtu as a VTU: ") as info:
+        read_answer(tmp_path / "other.vtu", case["disc"])
+    assert "SystemExit" not in str(info.value) and "Error:" not in str(info.value)
+
+
+def test_empty_U_field_in_a_vtu_gives_a_clean_message(case, tmp_path):
+    vtu = vtu_of(tmp_path / "a.vtu", case["disc"], case["newton"].u)
+    vtu.write_text(vtu.read_text().replace("<UnstructuredGrid>", '<UnstructuredGrid>\n<FieldData>\n<DataArray '
+                                           'type="Float64" Name="U" NumberOfTuples="1" format="ascii"></DataArray>\n'
+                                           "</FieldData>", 1))
+    with pytest.raises(InputError) as info:
+        read_answer(vtu, case["disc"])
+    assert str(info.value).endswith("as a VTU: malformed VTU content (a DataArray that is empty, truncated or of "
+                                    "another size than declared, or a missing attribute)")
+    assert "NoneType" not in str(info.value) and "AttributeError" not in str(info.value)
+
+
+def test_python_entry_points_name_their_arguments(case, tmp_path):
+    disc, s = case["disc"], case["newton"]
+    good = npz(tmp_path / "good_full.npz", u=s.u, U=s.U, sigma=s.sigma, xi=s.xi)
+    for call, message in [
+        (lambda: certify_answer(disc, {"u": np.zeros(3), "U": 0.0}, 1e-6), "ANSWER.u: expected (861, 2), got (3,)"),
+        (lambda: certify_answer(disc, {"u": s.u, "U": np.zeros(2)}, 1e-6), "ANSWER.U: expected a single number"),
+        (lambda: certify_answer(disc, {"u": s.u}, 1e-6), "ANSWER.U: missing"),
+        (lambda: certify_answer(disc, {"u": s.u, "U": "a"}, 1e-6), "ANSWER.U: expected real numbers"),
+        (lambda: certify_answer(disc, {"u": s.u, "U": s.U}, None), "tol: must be a number in [1e-13, 0.01], got None"),
+        (lambda: certify_answer(disc, [s.u, s.U], 1e-6), "answer: expected a Mapping"),
+        (lambda: certify_answer(None, {"u": s.u, "U": s.U}, 1e-6), "disc: expected a Discretization"),
+        (lambda: read_answer(good, None), "disc: expected a Discretization"),
+    ]:
+        with pytest.raises(InputError) as info:
+            call()
+        assert str(info.value).startswith(message)
+    assert certify_answer(disc, read_answer(good, disc), 1e-6).converged
+
+
+def test_3d_displacement_shape_is_said_once(tmp_path):
+    disc = build(sphere_quarter_dict(divisions=(3, 3, 2)))
+    n = disc.mesh.n_nodes
+    vtu = tmp_path / "q.vtu"
+    meshio.write(vtu, meshio.Mesh(disc.mesh.points, [("tetra", disc.mesh.cells)],
+                                  point_data={"displacement": np.zeros((n, 2))}))
+    with pytest.raises(InputError, match=rf"^ANSWER\.displacement: expected \({n}, 3\), got \({n}, 2\)$"):
+        read_answer(vtu, disc)
+
+
+def test_bounds_refusing_the_load_print_nothing(tmp_path, capsys):
+    """H = 0 and F far above the limit load: refused (load.force) before the residual table."""
+    data = cylinder_dict(divisions=(16, 8), hardening=0.0)
+    data["load"]["force"] = 1e6
+    toml = write_toml(tmp_path / "h0big.toml", data)
+    with pytest.warns(UserWarning, match="perfect plasticity"):
+        disc = build(data)
+    answer = npz(tmp_path / "h0z.npz", u=np.zeros((disc.mesh.n_nodes, 2)), U=0.0)
+    with pytest.warns(UserWarning), pytest.raises(InputError, match=r"^load\.force: .*above this mesh's lower-bound "
+                                                                    r"limit load"):
+        run_check(toml, answer, bounds=True)
+    assert capsys.readouterr().out == ""
+
+
+def test_article_of_the_file_kind(case, tmp_path):
+    with pytest.raises(InputError, match=r"^ANSWER: .* is a directory, not an answer file$"):
+        run_check(case["toml"], tmp_path)
+    with pytest.raises(InputError, match=r"^ANSWER: expected a path to an answer file, got int$"):
+        read_answer(3, case["disc"])
+
+
+def test_discretization_survives_pickling(case):
+    disc = case["disc"]
+    again = pickle.loads(pickle.dumps(disc))
+    assert isinstance(again.mesh.groups, MappingProxyType) and set(again.mesh.groups) == set(disc.mesh.groups)
+    assert isinstance(again.problem.boundary.fix_component, MappingProxyType)
+    for part in (disc.mesh, disc.problem, disc.problem.boundary):
+        pickle.loads(pickle.dumps(part))
+    sol = ep.solve(again, "newton", progress=False)
+    assert sol.converged and sol.U == case["newton"].U
+    np.testing.assert_array_equal(sol.u, case["newton"].u)

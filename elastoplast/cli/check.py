@@ -58,7 +58,7 @@ import numpy as np
 from elastoplast.certificate.kkt import KKTResiduals, certify
 from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK
-from elastoplast.errors import InputError
+from elastoplast.errors import InputError, expect, short_repr
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import return_mapping
 from elastoplast.limits import (
@@ -66,6 +66,7 @@ from elastoplast.limits import (
     check_input_file,
     check_memory,
     mesh_read_bytes,
+    read_bytes,
     shown,
 )
 from elastoplast.options import SolverOptions
@@ -80,6 +81,14 @@ POINT_TOLERANCE = 1e-6
 POINT_EDGE_SHARE = 0.1
 #: the method name the answer's Solution carries (summary.json's "method")
 METHOD = "answer"
+#: the largest summary.json read beside a VTU answer (a solve's is a few KiB)
+SUMMARY_LIMIT = 4 * 2**20
+#: the largest stress scale (E |u| / shortest edge, |sigma|, |xi|) the certificate takes:
+#: beyond it its squares and energies overflow floating point (no small-strain answer comes near)
+MAX_MAGNITUDE = 1e100
+#: the first bytes of an .npz (a zip archive) and of a VTU (XML)
+ZIP_MAGIC = b"PK\x03\x04"
+XML_STARTS = (b"<?xml", b"<VTKFile")
 
 
 # ----------------------------------------------------------------------------
@@ -194,8 +203,27 @@ def read_vtu_mesh(path: Path):
             warnings.simplefilter("ignore")
             return meshio.read(path, file_format="vtu")
     except (Exception, SystemExit) as exc:
-        said = " ".join(out.getvalue().split()) or f"{type(exc).__name__}: {exc}"
-        raise InputError(FIELD, f"cannot read {shown(path)} as a VTU: {said}"[:500]) from None
+        why = vtu_failure(exc, out.getvalue())
+        raise InputError(FIELD, f"cannot read {shown(path)} as a VTU: {why}"[:500]) from None
+
+
+def vtu_failure(exc: BaseException, printed: str) -> str:
+    """Why meshio could not read a VTU, readably: what it printed, its own ReadError or
+    the XML parser's message; never a ``SystemExit`` code or an internal Python error
+    (an empty ``DataArray`` makes meshio fail with an AttributeError)."""
+    import xml.etree.ElementTree as ET
+
+    import meshio
+
+    said = " ".join(printed.split())
+    if said:
+        return said
+    if isinstance(exc, ET.ParseError):
+        return f"not well-formed XML ({exc})"
+    if isinstance(exc, (meshio.ReadError, ValueError)) and str(exc).strip():
+        return " ".join(str(exc).split())
+    return ("malformed VTU content (a DataArray that is empty, truncated or of another size than declared, or a "
+            "missing attribute)")
 
 
 def matching_nodes(disc: Discretization, points: np.ndarray) -> np.ndarray | None:
@@ -227,13 +255,18 @@ def vtu_U(path: Path, m, disc: Discretization) -> np.ndarray:
     if not summary.is_file():
         raise InputError(f"{FIELD}.U", f"missing: {shown(path)} has no field data U and no summary.json lies beside "
                                        "it (give an .npz with u and U)")
+    raw = read_bytes(summary, f"{FIELD}.U", "summary.json", SUMMARY_LIMIT)
     try:
-        data = json.loads(summary.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{FIELD}.U", f"cannot read U from {shown(summary)}: {exc}") from None
+        data = json.loads(raw.decode("utf-8"))
+    except (ValueError, RecursionError) as exc:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        raise InputError(f"{FIELD}.U", f"cannot read U from {shown(summary)}: {exc}"[:500]) from None
     if not isinstance(data, Mapping) or "U" not in data:
         raise InputError(f"{FIELD}.U", f"missing: {shown(summary)} has no U")
-    if data.get("n_nodes", disc.mesh.n_nodes) != disc.mesh.n_nodes:
+    n_nodes = data.get("n_nodes", disc.mesh.n_nodes)
+    if isinstance(n_nodes, bool) or not isinstance(n_nodes, int):
+        raise InputError(f"{FIELD}.U", f"{shown(summary)}: n_nodes must be an integer (the node count of the "
+                                       f"solve's mesh), got {short_repr(n_nodes)}")
+    if n_nodes != disc.mesh.n_nodes:
         raise InputError(f"{FIELD}.U", f"{shown(summary)} belongs to a mesh of {data['n_nodes']} nodes, not this "
                                        f"problem's {disc.mesh.n_nodes}")
     value = data["U"]
@@ -251,7 +284,8 @@ def read_vtu(path: Path, disc: Discretization) -> dict[str, np.ndarray]:
         raise InputError(f"{FIELD}.displacement", f"missing: the VTU has no point data 'displacement' (it has {held})")
     disp = np.asarray(m.point_data["displacement"])
     if disp.ndim != 2 or disp.shape[0] != n or disp.shape[1] not in (d, 3):
-        raise InputError(f"{FIELD}.displacement", f"expected ({n}, {d}) or ({n}, 3), got {shape_text(disp.shape)}"
+        wanted = f"({n}, 3)" if d == 3 else f"({n}, {d}) or ({n}, 3)"
+        raise InputError(f"{FIELD}.displacement", f"expected {wanted}, got {shape_text(disp.shape)}"
                                                   + (f"; the problem's mesh has {n} nodes" if disp.shape[:1] != (n,)
                                                      else ""))
     disp = check_values("displacement", disp)
@@ -277,17 +311,23 @@ def read_vtu(path: Path, disc: Discretization) -> dict[str, np.ndarray]:
 
 
 def answer_format(path: Path) -> str:
-    """``"npz"`` or ``"vtu"``: by the suffix, else by the first bytes."""
+    """``"npz"`` or ``"vtu"``: by the first bytes (a zip archive, XML), whatever the
+    suffix says; a note when the suffix says otherwise."""
     suffix = path.suffix.lower()
-    if suffix in (".npz", ".vtu"):
-        return suffix[1:]
     with open(path, "rb") as fh:
-        head = fh.read(256).lstrip()
-    if head.startswith(b"PK\x03\x04"):
-        return "npz"
-    if head.startswith((b"<?xml", b"<VTKFile")):
-        return "vtu"
-    raise InputError(FIELD, f"{shown(path)} is neither an .npz (arrays u, U) nor a .vtu (point data displacement)")
+        head = fh.read(256)
+    head = head.removeprefix(b"\xef\xbb\xbf").lstrip()  # a UTF-8 byte order mark, blank lines
+    fmt = "npz" if head.startswith(ZIP_MAGIC) else "vtu" if head.startswith(XML_STARTS) else None
+    if fmt is None:
+        what = {".npz": "an .npz: it is not a zip archive", ".vtu": "a VTU: it is not an XML file"}.get(suffix)
+        if what:
+            raise InputError(FIELD, f"cannot read {shown(path)} as {what} (it starts with {head[:16]!r})")
+        raise InputError(FIELD, f"{shown(path)} is neither an .npz (arrays u, U) nor a .vtu (point data "
+                                "displacement)")
+    if suffix in (".npz", ".vtu") and suffix[1:] != fmt:
+        print(f"note: {FIELD}: {path.name} is {'an .npz (a zip archive)' if fmt == 'npz' else 'a VTU (XML)'} "
+              "whatever its suffix says; read as one", file=sys.stderr)
+    return fmt
 
 
 def read_answer(path: str | Path, disc: Discretization) -> dict[str, Any]:
@@ -295,6 +335,7 @@ def read_answer(path: str | Path, disc: Discretization) -> dict[str, Any]:
     None, "xi": (n_el,) | None, "format": "npz" | "vtu"}``, every array checked against
     ``disc``: an InputError naming ``ANSWER.<array>`` for a missing array, a wrong shape
     or node count, a NaN or infinity, or a file that cannot be read."""
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
     path = as_path(path, FIELD, "answer file")
     check_input_file(path, FIELD, "answer file")
     try:
@@ -336,30 +377,81 @@ def certify_answer(disc: Discretization, answer: Mapping[str, Any], tol: float, 
     CONVERGED when every residual is at most ``tol`` and the strains stay small, FAILED
     otherwise (the message says why). Stresses absent: the return mapping of the strains
     of ``u``; contact forces: those the stresses imply. The residuals are those of ``u``
-    as given (its fixed components included, which ``dirichlet`` judges)."""
+    as given (its fixed components included, which ``dirichlet`` judges).
+
+    Refused (InputError naming ``ANSWER.<array>``, or ``disc``, ``tol``): an answer that
+    is no mapping, arrays of the wrong shape, NaN or infinite values, and magnitudes
+    that would overflow the certificate's arithmetic (:func:`check_magnitudes`)."""
     t0 = time.perf_counter()
-    u = np.asarray(answer["u"], dtype=float).reshape(disc.mesh.n_nodes, disc.dim)
-    U = float(answer["U"])
-    u_free = disc.free_displacement(u)
-    sigma, xi = answer.get("sigma"), answer.get("xi")
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    expect(answer, Mapping, "answer", "read_answer(path, disc), or a dict with u and U")
+    try:
+        tol = SolverOptions.build({"tol": tol}).tol
+    except InputError as exc:
+        raise InputError("tol", exc.message) from None
+    arrays = {}
+    for name in NPZ_ARRAYS:
+        value = answer.get(name)
+        if value is None:
+            if name in ("u", "U"):
+                raise InputError(f"{FIELD}.{name}", "missing")
+            continue
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "iuf":
+            raise InputError(f"{FIELD}.{name}", f"expected real numbers, got {short_repr(value)}")
+        check_shape(name, arr.shape, disc)
+        arrays[name] = check_values(name, arr)
+    u, U = arrays["u"], float(arrays["U"].reshape(-1)[0])
+    sigma, xi = arrays.get("sigma"), arrays.get("xi")
     if (sigma is None) != (xi is None):
         given, other = ("sigma", "xi") if xi is None else ("xi", "sigma")
         raise InputError(f"{FIELD}.{other}", f"missing ({given} is given: give both, or neither for the stresses of "
                                              "the return mapping of u)")
-    if sigma is None:
-        sigma, xi, _ = return_mapping(disc.material, disc.strain(u_free))
-    sol = make_solution(disc, method=METHOD, status=Status.CONVERGED, sigma=sigma, xi=xi, u_free=u_free, U=U,
-                        iterations=0, timings={})
-    kkt = certify(disc, sol.sigma, sol.xi, u, U, contact_force=sol.contact_force)
+    check_magnitudes(disc, u, U, sigma, xi)
+    with np.errstate(all="ignore"):
+        u_free = disc.free_displacement(u)
+        if sigma is None:
+            sigma, xi, _ = return_mapping(disc.material, disc.strain(u_free))
+        sol = make_solution(disc, method=METHOD, status=Status.CONVERGED, sigma=sigma, xi=xi, u_free=u_free, U=U,
+                            iterations=0, timings={})
+        kkt = certify(disc, sol.sigma, sol.xi, u, U, contact_force=sol.contact_force)
     above = failed_residuals(kkt, tol)
     reasons = [f"{', '.join(above)} above tol {tol:g} (worst {_figure(kkt.worst, '.2e')})"] if above else []
-    if sol.status is not Status.CONVERGED:  # make_solution's own verdict: strains beyond the small-strain model
+    finite = all(np.all(np.isfinite(a)) for a in (sol.sigma, sol.xi, sol.contact_force)) and math.isfinite(kkt.worst)
+    if not finite:  # the input is finite and below MAX_MAGNITUDE: the arithmetic overflowed all the same
+        reasons = [f"the certificate overflowed (displacements up to {np.abs(u).max(initial=abs(U)):.3g}): not "
+                   "certified"]
+    elif sol.status is not Status.CONVERGED:  # make_solution's own verdict: strains beyond the small-strain model
         reasons.append(sol.message)
     status = Status.FAILED if reasons else Status.CONVERGED
     message = "; ".join(reasons) if reasons else (f"every KKT residual at most tol {tol:g} (worst "
                                                   f"{_figure(kkt.worst, '.2e')})")
     timings = {"check": seconds + time.perf_counter() - t0}
     return replace(sol, u=u, kkt=kkt, status=status, message=message, timings=timings)
+
+
+def check_magnitudes(disc: Discretization, u: np.ndarray, U: float, sigma: np.ndarray | None,
+                     xi: np.ndarray | None) -> None:
+    """Refuse finite values so large that the certificate's strains, stresses or energies
+    overflow floating point: a stress scale (``E |u| / shortest edge``, ``|sigma|``,
+    ``|xi|``) above :data:`MAX_MAGNITUDE`. Such an answer is no small-strain answer."""
+    from elastoplast.mesh.base import shortest_edge
+
+    points = disc.mesh.points
+    h = shortest_edge(points, disc.mesh.cells)
+    extent = float(np.max(points.max(axis=0) - points.min(axis=0)))
+    E = float(disc.material.E)
+    for name, value in (("u", float(np.abs(u).max(initial=0.0))), ("U", abs(U))):
+        if value * E > MAX_MAGNITUDE * h:
+            raise InputError(f"{FIELD}.{name}", f"values up to {value:.3g} overflow the strains (the mesh is "
+                                                f"{extent:.3g} across, its shortest edge {h:.3g}, E = {E:g}): not "
+                                                "displacements in the problem's units")
+    for name, arr in (("sigma", sigma), ("xi", xi)):
+        value = 0.0 if arr is None else float(np.abs(arr).max(initial=0.0))
+        if value > MAX_MAGNITUDE:
+            raise InputError(f"{FIELD}.{name}", f"values up to {value:.3g} overflow the certificate's energies (at "
+                                                f"most {MAX_MAGNITUDE:.0e}; E = {E:g}, yield stress "
+                                                f"{disc.material.yield_stress:g})")
 
 
 # ----------------------------------------------------------------------------
@@ -441,6 +533,8 @@ def run_check(problem_path: str | Path, answer_path: str | Path, tol: float | No
     if out is not None:
         check_output_dir(out, "--out")
     check_input_file(as_path(answer_path, FIELD, "answer file"), FIELD, "answer file")  # before the mesh is built
+    if out is not None:
+        check_out_keeps_inputs(out, problem_path, Path(answer_path))
     disc = _discretize(problem_path, data)
     answer = read_answer(answer_path, disc)
     if bounds:
@@ -457,11 +551,10 @@ def run_check(problem_path: str | Path, answer_path: str | Path, tol: float | No
               f"{disc.n_contact} contact nodes; checking {Path(answer_path).name} ({stresses}), tol {tol:g}"
               + ("; then the bounds" if bounds else ""), file=sys.stderr)
     sol = certify_answer(disc, answer, tol, seconds=time.perf_counter() - t0)
+    report = _bounds(disc, sol) if bounds else None  # before any output: it may refuse the input (load.force)
     for line in residual_lines(sol.kkt, tol):
         print(line)
-    report = None
-    if bounds:
-        report = _bounds(disc, sol)
+    if report is not None:
         print(bounds_line(report, sol.U))
     certified = sol.converged and (report is None or report.certified)
     extra = {"check": {"answer": str(answer_path), "format": answer["format"], "tol": tol,
@@ -479,6 +572,21 @@ def run_check(problem_path: str | Path, answer_path: str | Path, tol: float | No
         written = f" -> {Path(out) / 'summary.json'}"
     print(verdict_line(sol, report, certified) + written)
     return EXIT_OK if certified else EXIT_NOT_CONVERGED
+
+
+def check_out_keeps_inputs(out: str | Path, problem_path: Path, answer_path: Path) -> None:
+    """Refuse an ``--out`` folder holding (at any depth) the answer (and so the
+    ``summary.json`` read beside it) or the problem file: the results would replace them."""
+    from elastoplast.io.output import path_errors
+
+    with path_errors(out, "--out"):
+        folder = Path(out).expanduser().resolve()
+        inputs = {"the answer": answer_path.expanduser().resolve(), "the problem file": problem_path.resolve()}
+    for what, path in inputs.items():
+        if folder in path.parents:
+            beside = " and the summary.json beside it" if what == "the answer" else ""
+            raise InputError("--out", f"{shown(out)} holds {what} ({shown(path)}{beside}), which the results would "
+                                      "replace; name another folder")
 
 
 def verdict_line(sol: Solution, report, certified: bool) -> str:

@@ -285,7 +285,11 @@ class Store:
     :meth:`writer` holds an exclusive lock for one campaign at a time."""
 
     def __init__(self, path: str | Path):
-        self.path = Path(path).expanduser().resolve()  # 'nosuch/../DIR' is DIR, judged and written as DIR
+        self.path = Path(path)
+        try:  # 'nosuch/../DIR' is DIR, judged and written as DIR
+            self.path = self.path.expanduser().resolve()
+        except (OSError, ValueError, RuntimeError):  # a name too long, a loop: refused where the path is used
+            pass
 
     @property
     def index_path(self) -> Path:

@@ -45,6 +45,10 @@ class Mesh:
         object.__setattr__(self, "groups", MappingProxyType(dict(self.groups)))
         object.__setattr__(self, "other_groups", MappingProxyType(dict(self.other_groups)))
 
+    def __reduce__(self):
+        # the read-only mappings (MappingProxyType) cannot be pickled: pickle plain dicts, rebuilt read-only on load
+        return (Mesh, (self.points, self.cells, dict(self.groups), dict(self.other_groups)))
+
     @property
     def dim(self) -> int:
         return self.points.shape[1]

@@ -44,6 +44,10 @@ class Boundary:
             self, "fix_component", MappingProxyType({int(k): tuple(v) for k, v in dict(self.fix_component).items()})
         )
 
+    def __reduce__(self):
+        # MappingProxyType cannot be pickled: pickle a plain dict, rebuilt read-only on load
+        return (Boundary, (self.clamped, self.contact, dict(self.fix_component)))
+
 
 MAX_PSI_OVER_SPAN = 1e6
 

@@ -97,6 +97,65 @@ def solve_contact_qp(S: np.ndarray, g: np.ndarray, lam0: np.ndarray | None = Non
     return nnls_fallback(S, g)
 
 
+#: the dual QP of step (ii): "active-set" (:func:`solve_contact_qp`, exact to rounding) or
+#: "osqp" (:class:`OSQPContactQP`)
+CONTACT_QP = ("active-set", "osqp")
+
+#: OSQP's eps_abs = eps_rel for the contact QP; its polishing then solves the KKT system
+#: on the contact set ADMM found, exact to rounding when that set is right
+OSQP_CONTACT_EPS = 1e-9
+
+#: ADMM iterations of one contact QP (warm-started, a few dozen suffice once Uzawa settles)
+OSQP_CONTACT_MAX_ITER = 20_000
+
+
+def osqp_polish_key() -> str:
+    """OSQP's name of its polishing setting: ``polishing`` from 1.0 on, ``polish`` before."""
+    import osqp
+
+    return "polish" if str(getattr(osqp, "__version__", "1")).startswith("0.") else "polishing"
+
+
+class OSQPContactQP:
+    """The dual QP of step (ii), ``min 1/2 lam^T S lam + g^T lam``, ``lam >= 0``, by OSQP
+    (Stellato et al. 2020: ADMM with one factorisation, then solution polishing).
+
+    ``S`` never changes during a run: OSQP is set up (and its KKT matrix factored)
+    once, and each call only updates ``q = g`` and warm-starts from ``lam0``. Same
+    call as :func:`solve_contact_qp`; ``S`` is checked to be the one it was set up
+    with. ``solves`` and ``unpolished`` (answers whose polishing failed, accurate to
+    ``eps`` only) are counted for the run's message.
+    """
+
+    def __init__(self, S: np.ndarray, eps: float = OSQP_CONTACT_EPS, max_iter: int = OSQP_CONTACT_MAX_ITER):
+        import osqp
+
+        n = S.shape[0]
+        self.S = S
+        self.solver = osqp.OSQP()
+        self.solver.setup(sp.triu(sp.csc_matrix(S), format="csc"), np.zeros(n), sp.identity(n, format="csc"),
+                          np.zeros(n), np.full(n, np.inf), eps_abs=eps, eps_rel=eps, max_iter=max_iter, warm_starting=True,
+                          verbose=False, **{osqp_polish_key(): True})
+        self.solves = 0
+        self.unpolished = 0
+
+    def __call__(self, S: np.ndarray, g: np.ndarray, lam0: np.ndarray | None = None,
+                 max_iter: int | None = None) -> np.ndarray:
+        if S is not self.S:
+            raise ValueError("OSQPContactQP is set up for one matrix S")
+        self.solver.update(q=np.asarray(g, dtype=float))
+        if lam0 is not None:
+            self.solver.warm_start(x=np.maximum(np.asarray(lam0, dtype=float), 0.0))
+        try:
+            res = self.solver.solve(raise_error=False)
+        except TypeError:  # osqp 0.6: no raise_error
+            res = self.solver.solve()
+        self.solves += 1
+        if int(getattr(res.info, "status_polish", 0)) != 1:
+            self.unpolished += 1
+        return np.maximum(np.array(res.x, dtype=float), 0.0)
+
+
 def nnls_fallback(S: np.ndarray, g: np.ndarray) -> np.ndarray:
     """The same QP as NNLS: with ``S = L L^T``, ``min |L^T lam + L^{-1} g|^2``."""
     from scipy.optimize import nnls
@@ -116,6 +175,7 @@ def project_contact(
     solve: Solve,
     ops: ContactOperators,
     lam0: np.ndarray | None = None,
+    qp=None,
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """Step (ii): the projection onto K_h in the metric ``G + w`` (``w = ops.weight``).
 
@@ -127,13 +187,14 @@ def project_contact(
     ``min 1/2 lam^T S lam + lam^T g*``, ``g* = N v* + psi - V*``, ``lam >= 0``
     (:func:`solve_contact_qp`). The new gaps are ``g* + S lam >= 0``.
     At a fixed point ``r = N^T lam / rho``: ``lam / rho`` are the contact forces.
-    Returns ``(u_new, U_new, lam)``.
+    ``qp(S, g, lam0)`` solves the dual QP (``None``: :func:`solve_contact_qp`; or an
+    :class:`OSQPContactQP`). Returns ``(u_new, U_new, lam)``.
     """
     w = ops.weight
     v_star = u - rho * solve(r) if rho else np.array(u, dtype=float)
     V_star = U + rho * force / w
     g_star = N @ v_star + psi - V_star
-    lam = solve_contact_qp(ops.S, g_star, lam0)
+    lam = (solve_contact_qp if qp is None else qp)(ops.S, g_star, lam0)
     on = np.flatnonzero(lam)
     return v_star + ops.Z[:, on] @ lam[on], float(U + (rho * force - lam.sum()) / w), lam
 
@@ -144,15 +205,16 @@ class DirectProjection:
 
     backend = "direct"
 
-    def __init__(self, solve: Solve, ops: ContactOperators):
+    def __init__(self, solve: Solve, ops: ContactOperators, contact_qp: str = "active-set"):
         self.solve, self.ops = solve, ops
+        self.qp = OSQPContactQP(ops.S) if contact_qp == "osqp" else None
 
     @property
     def weight(self) -> float:
         return self.ops.weight
 
     def __call__(self, u, U, r, rho, force, N, psi, lam0=None, start=None):
-        return project_contact(u, U, r, rho, force, N, psi, self.solve, self.ops, lam0)
+        return project_contact(u, U, r, rho, force, N, psi, self.solve, self.ops, lam0, self.qp)
 
 
 class IterativeProjection:
@@ -303,19 +365,32 @@ def iterative_context(disc: Discretization, method: str):
 
 
 def metric_projection(nd: Discretization, length: float, M: np.ndarray, method: str = "auto",
-                      weight: float | None = None, rtol: float = 1e-6):
+                      weight: float | None = None, rtol: float = 1e-6, contact_qp: str = "active-set"):
     """Step (ii) in the metric ``sum_T |T| B_T^T M B_T`` (+ ``weight`` for V):
     :class:`IterativeProjection` when :func:`iterative_metric`, else
-    :class:`DirectProjection` with the factorisation ``method``."""
+    :class:`DirectProjection` with the factorisation ``method`` and the dual QP
+    ``contact_qp`` (:data:`CONTACT_QP`; the iterative path has no dual QP, so "osqp"
+    is refused there)."""
+    if contact_qp not in CONTACT_QP:
+        raise InputError("contact_qp", f"must be one of {list(CONTACT_QP)}, got {contact_qp!r}")
     if iterative_metric(nd, method):
+        if contact_qp != "active-set":
+            raise InputError("contact_qp", f"{contact_qp!r} solves the dual QP of the direct step (ii); with "
+                                           f"{nd.n_elements:,} elements and factorization={method!r} step (ii) is "
+                                           "iterative (AMG-CG) and has none: choose a factorization such as "
+                                           "'superlu'")
         return IterativeProjection(nd, length, M, weight, rtol)
     solve = factorize_spd(nd.weighted_gram(M).tocsc(), method)
-    return DirectProjection(solve, contact_operators(nd.N, solve, weight))
+    return DirectProjection(solve, contact_operators(nd.N, solve, weight), contact_qp)
 
 
 def projection_note(proj) -> str:
-    """What the answer's message says about an iterative step (ii)."""
+    """What the answer's message says about step (ii) when it is not the default
+    direct one: the iterative path's work, or OSQP's contact QPs."""
     if proj.backend != "amg":
-        return ""
+        qp = getattr(proj, "qp", None)
+        if qp is None:
+            return ""
+        return f"; step (ii)'s contact QP by OSQP: {qp.solves} solves, {qp.unpolished} not polished"
     return (f"; step (ii) by AMG-CG: {proj.faces.setups} AMG set-up(s), {proj.active_set_iterations} face solves, "
             f"{proj.cg_iterations} CG iterations")

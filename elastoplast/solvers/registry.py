@@ -1,7 +1,11 @@
 """The method registry: one name per solver, its options, and the one way in.
 
 A method is a :class:`Method`: a function ``run(disc, options) -> Solution`` and
-its options class (a :class:`~elastoplast.options.SolverOptions`). Every entry
+its options class (a :class:`~elastoplast.options.SolverOptions`). Besides the
+built-in :data:`METHODS`, a name may be ``package.module:object`` or the name of
+an entry point of the group ``elastoplast.methods``: a method from outside the
+package, loaded by :func:`get_method` (:mod:`elastoplast.solvers.plugins`) and
+certified like the others. Every entry
 point builds options through :func:`method_options`, so a command-line flag, a
 ``[solver]`` table, a campaign axis and ``solve(disc, method, **options)`` are
 checked alike: an unknown option, or one the method does not have (``rho`` for
@@ -11,11 +15,12 @@ checked alike: an unknown option, or one the method does not have (``rho`` for
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from elastoplast.certificate.solution import Solution, within_small_strains
-from elastoplast.errors import InputError, expect
+from elastoplast.errors import InputError, expect, short_repr
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.locking import check_hardening_carries_load, check_perfect_plasticity
 from elastoplast.options import SolverOptions
@@ -27,6 +32,17 @@ from elastoplast.solvers.conic import (
     solve_conic_displacement,
 )
 from elastoplast.solvers.newton import NewtonOptions, solve_newton
+from elastoplast.solvers.plugins import (
+    SPEC_FORM,
+    check_function,
+    entry_points,
+    find_entry_point,
+    guarded,
+    import_object,
+    is_spec,
+    judged,
+    load_entry_point,
+)
 from elastoplast.solvers.uzawa import UzawaOptions, check_rho, solve_uzawa
 
 
@@ -90,7 +106,7 @@ def check_solvable(disc: Discretization, method: str, options: SolverOptions | N
                                        "strains")
     check_hardening_carries_load(disc)
     limit = CONIC_MAX_ELEMENTS[disc.dim]
-    if method.startswith("conic") and disc.n_elements > limit:
+    if method in METHODS and method.startswith("conic") and disc.n_elements > limit:
         fast = [m for m in METHODS if not m.startswith("conic")]
         raise InputError("method", f"{disc.n_elements:,} elements is beyond what the conic reference can finish "
                                    f"here (at most {limit:,} in {disc.dim}D, measured: benchmarks/scale); "
@@ -101,10 +117,48 @@ def check_solvable(disc: Discretization, method: str, options: SolverOptions | N
 
 
 def get_method(name: Any, field: str = "method") -> Method:
-    """The registered method ``name``, or an InputError naming ``field``."""
-    if not isinstance(name, str) or name not in METHODS:
-        raise InputError(field, f"unknown method {name!r} (choose from {sorted(METHODS)})")
-    return METHODS[name]
+    """The method ``name``, or an InputError naming ``field``: a built-in name (a key
+    of :data:`METHODS`, which always wins), ``package.module:object``, or the name of
+    an entry point of the group ``elastoplast.methods``. A method from outside is
+    loaded at each call (the import system caches its module) and comes back as a
+    :class:`Method` called ``name`` whose run is certified and judged by the
+    package (:func:`~elastoplast.solvers.plugins.judged`)."""
+    if isinstance(name, str) and name in METHODS:
+        return METHODS[name]
+    if not isinstance(name, str) or not name.strip():
+        raise InputError(field, f"unknown method {short_repr(name)} (choose from {sorted(METHODS)}, or give "
+                                f"{SPEC_FORM})")
+    if is_spec(name):
+        return plugin_method(import_object(name, field), name, field)
+    entry = find_entry_point(name, METHODS, field)
+    if entry is None:
+        plugins = sorted(entry_points(METHODS))
+        installed = f", the installed {plugins}" if plugins else ""
+        raise InputError(field, f"unknown method {name!r} (choose from {sorted(METHODS)}{installed}, or give "
+                                f"{SPEC_FORM})")
+    return plugin_method(load_entry_point(entry, field), name, field, f"entry point {name!r} ({entry.value})")
+
+
+def plugin_method(obj: Any, name: str, field: str, where: str = "") -> Method:
+    """A method from outside as a :class:`Method` called ``name``: ``obj`` is a
+    Method (its options class and check are kept) or a function ``run(disc,
+    options)``, which takes the base :class:`~elastoplast.options.SolverOptions`.
+    Either way its run is wrapped by :func:`~elastoplast.solvers.plugins.judged`.
+    Anything else is an InputError naming ``field``."""
+    where = where or repr(name)
+    if isinstance(obj, Method):
+        if not (isinstance(obj.options, type) and issubclass(obj.options, SolverOptions)):
+            raise InputError(field, f"{where} is a Method whose options {short_repr(obj.options)} are not a class "
+                                    "deriving from elastoplast.options.SolverOptions")
+        check_function(obj.run, f"{where}'s run", field)
+        return Method(name, judged(obj.run, name), obj.options, obj.summary or f"from {where}",
+                      guarded(obj.check, name))
+    if callable(obj) and not isinstance(obj, type):
+        check_function(obj, where, field)
+        doc = (inspect.getdoc(obj) or "").strip().splitlines()
+        return Method(name, judged(obj, name), SolverOptions, doc[0] if doc else f"from {where}")
+    raise InputError(field, f"{where} is {short_repr(obj, 60)} ({type(obj).__name__}), neither a Method "
+                            "(elastoplast.solvers.registry.Method) nor a function run(disc, options)")
 
 
 def method_options(method: str, values: Mapping[str, Any] | SolverOptions | None = None, *,
@@ -132,7 +186,8 @@ def solver_settings(section: Mapping[str, Any], prefix: str = "solver") -> tuple
 
 def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOptions | None = None,
           **values: Any) -> Solution:
-    """Solve (2.1) by ``method`` (a key of :data:`METHODS`), with options given
+    """Solve (2.1) by ``method`` (a key of :data:`METHODS`, ``package.module:object``
+    or an entry point's name: :func:`get_method`), with options given
     either as an options object or as keywords (not both). Whatever the method, an
     answer whose strains leave the small-strain model is not ``converged``
     (:func:`~elastoplast.certificate.solution.within_small_strains`)."""

@@ -38,6 +38,7 @@ from elastoplast.linalg.direct import FACTORIZATIONS
 from elastoplast.options import MAX_ITER_CEILING, SolverOptions, option
 from elastoplast.errors import short_repr
 from elastoplast.solvers.contact import (
+    CONTACT_QP,
     iterative_context,
     metric_projection,
     projection_note,
@@ -110,7 +111,8 @@ class UzawaOptions(SolverOptions):
     :data:`UZAWA_AMG_FROM_ELEMENTS` elements on). ``inner_rtol`` (AMG only): the
     relative residual of each face solve of step (ii), relative to a
     right-hand side that vanishes at the fixed point. ``rigid_weight``: see
-    :func:`contact_operators`.
+    :func:`contact_operators`. ``contact_qp``: the dual QP of the direct step (ii),
+    ``"active-set"`` (:func:`solve_contact_qp`, the default) or ``"osqp"``.
     """
 
     max_iter: int = option(5000, int, "iteration limit", lo=1, hi=MAX_ITER_CEILING)
@@ -134,6 +136,11 @@ class UzawaOptions(SolverOptions):
                                       "one means divergence", lo=1.0)
     max_check_interval: int = option(10, int, "most iterations between checks when check_every is automatic",
                                      lo=1, hi=1000)
+    #: the dual QP of the direct step (ii): the exact active-set method, or OSQP
+    #: (:class:`~elastoplast.solvers.contact.OSQPContactQP`, set up once, polished);
+    #: the iterative step (ii) has no dual QP and refuses "osqp"
+    contact_qp: str = option("active-set", str, "direct step (ii)'s contact QP: active-set (exact) or osqp",
+                             choices=CONTACT_QP)
 
 
 # ----------------------------------------------------------------------------
@@ -215,7 +222,8 @@ def _solve_uzawa(disc: Discretization, options: UzawaOptions) -> Solution:
     monitor = Monitor("uzawa", disc, nd, units, options, divergence_factor=options.divergence_factor, t_start=t_start)
     rho_nd = rho * units.E  # the step in the scaled units, where E = 1
     weight = None if options.rigid_weight is None else options.rigid_weight / units.length ** (disc.dim - 2)
-    proj = metric_projection(nd, units.length, np.eye(nd.k), options.factorization, weight, options.inner_rtol)
+    proj = metric_projection(nd, units.length, np.eye(nd.k), options.factorization, weight, options.inner_rtol,
+                             options.contact_qp)
     u, U, lam = _initial_point(disc, nd, units, options, rho_nd)
     # the start must lie in K_h: project it (a step with rho = 0 is the pure projection)
     u, U, _ = proj(u, U, np.zeros(nd.n_free), 0.0, nd.force, nd.N, nd.psi)

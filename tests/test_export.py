@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from pathlib import Path
 
 import clarabel
 import numpy as np
@@ -352,7 +353,7 @@ def test_refusals(case, tmp_path):
         assert err.value.field == field
     with pytest.raises(InputError) as err:
         export(disc, tmp_path / "missing" / "p.cbf")
-    assert err.value.field == "out"
+    assert err.value.field == "path"
     other = build(cylinder_dict((8, 4)))
     info = export(other, tmp_path / "other.npz", "npz")
     with pytest.raises(InputError, match="another problem"):
@@ -374,3 +375,209 @@ def test_export_command(tmp_path, capsys):
     code = main(["export", str(problem), "--energy", "quadratic", "--out", str(tmp_path / "q.cbf"), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err[-1].startswith("error: --energy:"), err
+
+
+# ----------------------------------------------------------------------------
+# the output file: refused before any work, written whole (the adversarial pass's inputs)
+# ----------------------------------------------------------------------------
+
+
+def run_export(capsys, *argv):
+    """``elastoplast export ARGV --quiet``: the exit code and the last stderr line."""
+    from elastoplast.cli.main import main
+
+    code = main(["export", *map(str, argv), "--quiet"])
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    return code, (lines[-1] if lines else ""), captured.out
+
+
+@pytest.fixture
+def victim(tmp_path):
+    from test_cli import small_cylinder, write_toml
+
+    return write_toml(tmp_path / "victim.toml", small_cylinder())
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return build(cylinder_dict((8, 4)))
+
+
+def folder_listing(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_out_never_overwrites_the_problem_or_a_foreign_file(victim, tmp_path, capsys):
+    original = victim.read_bytes()
+    code, err, _ = run_export(capsys, victim, "--out", victim)
+    assert code == 2 and err.startswith("error: --out:") and "problem's own file" in err
+    small = tmp_path / "small2d.toml"
+    small.write_bytes(original)
+    code, err, _ = run_export(capsys, small, "--out", f"{small}/")
+    assert code == 2 and err.startswith("error: --out:") and "names a folder" in err
+    good = tmp_path / "good.npz"
+    good.write_bytes(b"PK not mine")
+    code, err, _ = run_export(capsys, victim, "--out", good)
+    assert code == 2 and err.startswith("error: --format:") and "npz" in err, err
+    code, err, _ = run_export(capsys, victim, "--out", good, "--format", "npz")
+    assert code == 2 and err.startswith("error: --out:") and "not an earlier export" in err, err
+    code, err, _ = run_export(capsys, victim, "--out", tmp_path / "p.cbf", "--format", "npz")
+    assert code == 2 and err.startswith("error: --format:")
+    code, err, _ = run_export(capsys, victim, "--out", "ex/")
+    assert code == 2 and err.startswith("error: --out:")
+    assert victim.read_bytes() == original and small.read_bytes() == original and good.read_bytes() == b"PK not mine"
+    assert not (tmp_path / "ex").exists() and not (tmp_path / "ex.json").exists()
+    assert folder_listing(tmp_path) == ["good.npz", "small2d.toml", "victim.toml"]
+
+
+def test_out_never_overwrites_the_mesh_file(tmp_path, capsys):
+    from conftest import PROBLEMS
+
+    for name in ("punch_2d_gmsh.toml", "punch_2d.msh"):
+        (tmp_path / name).write_bytes((PROBLEMS / name).read_bytes())
+    mesh = (tmp_path / "punch_2d.msh").read_bytes()
+    code, err, _ = run_export(capsys, tmp_path / "punch_2d_gmsh.toml", "--out", tmp_path / "punch_2d.msh")
+    assert code == 2 and err.startswith("error: --out:") and "problem's own file" in err
+    assert (tmp_path / "punch_2d.msh").read_bytes() == mesh
+
+
+def test_an_earlier_export_is_replaced_and_nothing_else(victim, tmp_path, capsys):
+    out = tmp_path / "p.cbf"
+    for _ in range(2):
+        code, _, printed = run_export(capsys, victim, "--out", out)
+        assert code == 0 and printed.startswith("exported (S)")
+    assert read_sidecar(out)["sha256"] == hashlib.sha256(out.read_bytes()).hexdigest()
+    out.write_bytes(out.read_bytes() + b"# edited by hand\n")  # no longer the export its sidecar describes
+    code, err, _ = run_export(capsys, victim, "--out", out)
+    assert code == 2 and "not an earlier export" in err and out.read_bytes().endswith(b"# edited by hand\n")
+    stale = tmp_path / "q.cbf"  # a sidecar left alone by an earlier export: replaced
+    code, _, _ = run_export(capsys, victim, "--out", stale)
+    stale.unlink()
+    assert code == 0 and run_export(capsys, victim, "--out", stale)[0] == 0 and stale.is_file()
+    (tmp_path / "r.cbf.json").write_text("{}")  # a foreign file in the sidecar's place
+    code, err, _ = run_export(capsys, victim, "--out", tmp_path / "r.cbf")
+    assert code == 2 and "r.cbf.json exists" in err and not (tmp_path / "r.cbf").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+@pytest.mark.parametrize("out", ["sub", ".", "/", "", "loop", "a" * 300 + ".cbf", "/proc/x.cbf", "/sys/x.cbf",
+                                 "/dev/full", "sd/p.cbf", "nosuch/p.cbf"])
+def test_bad_out_paths_are_bad_input(victim, tmp_path, capsys, monkeypatch, out):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sd" / "p.cbf.json").mkdir(parents=True)
+    (tmp_path / "loop").symlink_to("loop")
+    if out.startswith(("/proc", "/sys", "/dev")) and not Path(out).parent.is_dir():
+        pytest.skip(f"no {Path(out).parent}")
+    before = folder_listing(tmp_path)
+    code, err, _ = run_export(capsys, victim, "--out", out)
+    assert code == 2 and err.startswith("error: --out:"), err
+    assert folder_listing(tmp_path) == before and folder_listing(tmp_path / "sd") == ["p.cbf.json"]
+
+
+def test_odd_file_names_make_valid_files(victim, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for name, shown_as in (("été.cbf", "\\u00e9t\\u00e9.cbf.json"), ("nl\nVER\n4\n.cbf", "nl\\nVER\\n4\\n.cbf.json")):
+        code, _, printed = run_export(capsys, victim, "--out", name)
+        assert code == 0 and printed.count("\n") == 1, printed
+        text = (tmp_path / name).read_text(encoding="ascii")
+        assert text.splitlines()[1] == f"# variables and rows: see {shown_as}" and text.endswith("\n")
+        prog = read_cbf(tmp_path / name)
+        assert prog.version == 3 and prog.c.size == read_sidecar(tmp_path / name)["n_variables"]
+
+
+def test_cbf_comments_are_one_ascii_line_each(tiny):
+    from elastoplast.io.cbf import cbf_text, escape_comment
+
+    prog = stress_form(tiny).program
+    assert cbf_text(prog).endswith("\n") and not cbf_text(prog).endswith("\n\n")
+    for bad in ("nl\nVER\n4", "cr\r", "\u2028", "é"):
+        prog.comments = [bad]
+        with pytest.raises(ValueError, match="CBF comment"):
+            cbf_text(prog)
+        prog.comments = [escape_comment(bad)]
+        assert cbf_text(prog).splitlines()[0].startswith("# ") and len(cbf_text(prog).splitlines()[0]) < 40
+    assert escape_comment("a\\b\n\u00e9\U0001f600") == "a\\\\b\\n\\u00e9\\U0001f600"
+
+
+@pytest.mark.parametrize("path, field", [(None, "path"), (123, "path"), (b"x", "path"), ("a\0b.cbf", "path"),
+                                         (".", "path"), ("", "path"), ("q.npz", "format")])
+def test_python_export_paths(tiny, tmp_path, monkeypatch, path, field):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(InputError) as err:
+        export(tiny, path)
+    assert err.value.field == field and folder_listing(tmp_path) == []
+
+
+@pytest.mark.parametrize("failing", ["data", "replace"])
+def test_a_failed_write_leaves_no_half_pair(tiny, tmp_path, monkeypatch, failing):
+    import errno
+    import os
+
+    from elastoplast.io import export_files
+
+    if failing == "data":
+        def broken(fd, data):
+            os.close(fd)
+            raise OSError(errno.ENOSPC, "No space left on device")
+        monkeypatch.setattr(export_files, "_write_all", broken)
+    else:
+        real = os.replace
+
+        def broken(src, dst):
+            if str(dst).endswith(".json"):
+                raise OSError(errno.EISDIR, "Is a directory")
+            return real(src, dst)
+        monkeypatch.setattr(export_files.os, "replace", broken)
+    with pytest.raises(InputError) as err:
+        export(tiny, tmp_path / "p.cbf")
+    assert err.value.field == "path" and "cannot write" in err.value.message
+    assert folder_listing(tmp_path) == []
+
+
+def test_readers_refuse_what_is_no_export(tiny, tmp_path):
+    with pytest.raises(InputError) as err:
+        read_sidecar(tmp_path / "missing.cbf")
+    assert err.value.field == "path"
+    with pytest.raises(InputError) as err:
+        read_cbf(tmp_path / "missing.cbf")
+    assert err.value.field == "cbf"
+    (tmp_path / "bin.cbf").write_bytes(bytes(range(256)))
+    with pytest.raises(InputError, match="not ASCII") as err:
+        read_cbf(tmp_path / "bin.cbf")
+    assert err.value.field == "cbf"
+    info = export(tiny, tmp_path / "p.cbf")
+    with pytest.raises(InputError, match="not an npz") as err:
+        load_npz(info.path)
+    assert err.value.field == "path"
+    (tmp_path / "x.json").write_text("[1, 2]")
+    with pytest.raises(InputError) as err:
+        read_sidecar(tmp_path / "x.json")
+    assert err.value.field == "path"
+    meta = read_sidecar(info.path)
+    for x, y, field in ((np.zeros(3), np.zeros(info.n_rows), "x"), (np.zeros(info.n_variables), np.zeros(3), "y"),
+                        (np.zeros((2, info.n_variables)), np.zeros(info.n_rows), "x")):
+        with pytest.raises(InputError) as err:
+            answer_from_solution(tiny, x, y, meta)
+        assert err.value.field == field
+    with pytest.raises(InputError) as err:
+        answer_from_solution(tiny, np.zeros(info.n_variables), np.zeros(info.n_rows), {"form": "S"})
+    assert err.value.field == "meta"
+
+
+def test_a_force_above_the_limit_load_gets_a_note(tmp_path, capsys):
+    from test_cli import small_cylinder, write_toml
+
+    data = small_cylinder()
+    data["material"]["hardening"] = 1.0
+    data["load"]["force"] = 1e7
+    problem = write_toml(tmp_path / "heavy.toml", data)
+    from elastoplast.cli.main import main
+
+    assert main(["export", str(problem), "--out", str(tmp_path / "h.cbf"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "note: the force 1e+07 is far above the limit load" in err, err
+    problem = write_toml(tmp_path / "light.toml", small_cylinder())
+    assert main(["export", str(problem), "--out", str(tmp_path / "l.cbf"), "--quiet"]) == 0
+    assert "note:" not in capsys.readouterr().err

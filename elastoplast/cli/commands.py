@@ -107,7 +107,7 @@ _CLI_NAMES = {
     "campaign": {"out": "--out", "store": "--out", "workers": "--workers", "scheduler": "--scheduler"},
     "compare": {"store": "STORE", "out": "--out", "reference_method": "--reference-method", "workers": "--workers",
                 "scheduler": "--scheduler"},
-    "export": {"out": "--out", "format": "--format", "form": "--form", "energy": "--energy"},
+    "export": {"out": "--out", "path": "--out", "format": "--format", "form": "--form", "energy": "--energy"},
 }
 
 
@@ -285,8 +285,14 @@ def _campaign(args: argparse.Namespace) -> int:
 
 def _compare(args: argparse.Namespace) -> int:
     from elastoplast.cli.compare import compare
+    from elastoplast.cli.suite import is_suite_dir, suite_command
     from elastoplast.solvers.registry import method_options
 
+    if is_suite_dir(args.store):  # a folder of problem files: performance profiles (cli/suite.py)
+        return suite_command(args, command_line_options(args))
+    if len(args.method) > 1:
+        raise InputError("--method", "a campaign store is compared one method at a time")
+    args.method = args.method[0]
     options = command_line_options(args)
     try:
         method_options(args.method, options)
@@ -363,14 +369,23 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from elastoplast.io.export import export
+    from elastoplast.io.export import check_export_options, check_export_path, export, limit_load_note
     from elastoplast.problem.definition import read_toml
 
     path = Path(args.problem) if args.problem else default_problem_path()
     data = read_toml(path)
+    mesh = data.get("mesh") if isinstance(data, dict) else None
+    mesh_file = mesh.get("file") if isinstance(mesh, dict) else None
+    protect = [path] + ([path.parent / mesh_file] if isinstance(mesh_file, str) else [])
+    with _named_as_flags("export"):  # the output file judged before any work
+        check_export_options(args.format, args.form, args.energy)
+        check_export_path(args.out, args.format, "path", protect)
     disc = _discretize(path, data, args.quiet, f"export of ({args.form}) as {args.format}")
+    note = limit_load_note(disc)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
     with _named_as_flags("export"):
-        info = export(disc, args.out, format=args.format, form=args.form, energy=args.energy)
+        info = export(disc, args.out, format=args.format, form=args.form, energy=args.energy, protect=protect)
     print(info.line())
     return EXIT_OK
 

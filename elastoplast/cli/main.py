@@ -92,12 +92,15 @@ def build_parser() -> argparse.ArgumentParser:
     _add_dask_arguments(p)
     p.add_argument("--retry-failed", action="store_true", help="also re-run stored cases the solver did not solve")
 
-    p = sub.add_parser("compare", help="run a method on every stored reference case and report its errors")
-    p.add_argument("store", help="store directory written by 'elastoplast campaign'")
-    p.add_argument("--method", required=True, help=f"method to compare (one of {sorted(METHODS)})")
+    p = sub.add_parser("compare", help="run a method on every stored reference case and report its errors; or, "
+                                       "on a folder of problem files, several methods and their performance profile")
+    p.add_argument("store", help="store directory written by 'elastoplast campaign', or a folder of problem files "
+                                 "(*.toml, no index.sqlite): a suite of instances")
+    p.add_argument("--method", required=True, action="append",
+                   help=f"method to compare (one of {sorted(METHODS)}); on a suite folder, repeat it for each method")
     _add_solver_arguments(p)
     p.add_argument("--reference-method", help="only the references solved by this method")
-    p.add_argument("--out", help="report directory (default: STORE/compare-METHOD)")
+    p.add_argument("--out", help="report directory (default: STORE/compare-METHOD; required for a suite folder)")
     _add_dask_arguments(p)
 
     p = sub.add_parser("options", help="list each method's options (set with --option NAME=VALUE) with type, "
@@ -124,7 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                                    "form (D) (default: S)")
     p.add_argument("--energy", default="cone", choices=["cone", "quadratic"],
                    help="the energy in a rotated quadratic cone (default), or as P (npz only)")
-    p.add_argument("--out", required=True, help="output file; the map back is written beside it as OUT.json")
+    p.add_argument("--out", required=True, help="output file; the map back is written beside it as OUT.json (an "
+                                                "earlier export there is replaced, any other file refused)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     return parser
 

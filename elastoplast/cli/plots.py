@@ -283,3 +283,29 @@ def _positive(values: list[Any]) -> np.ndarray:
     """Values as floats with zeros and negatives as NaN (not drawn on a log axis)."""
     v = np.asarray(values, dtype=float)
     return np.where(v > 0, v, np.nan)
+
+
+def plot_profile(profile: dict[str, list[float]], path: str | Path, *, taus: list[float], title: str = "") -> None:
+    """Performance profiles (:func:`~elastoplast.cli.profiles.performance_profile`):
+    one step curve per method, the fraction of instances solved within a factor τ of
+    the best method against log2 τ, written as PNG."""
+    import io
+
+    from matplotlib.figure import Figure
+
+    x = np.log2(np.asarray(taus, dtype=float))
+    fig = Figure(figsize=(6.4, 4.4), layout="constrained")
+    ax = fig.add_subplot()
+    styles = ["-", "--", "-.", ":"]
+    for i, (method, values) in enumerate(profile.items()):
+        ax.step(x, values, where="post", ls=styles[i // 10 % len(styles)], lw=1.6, label=method)
+    ax.set_xlim(0.0, max(float(x[-1]), 1.0) if x.size else 1.0)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel("log2 τ  (time within a factor τ of the best method)")
+    ax.set_ylabel("fraction of instances solved")
+    ax.set_title(title or "performance profile")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    atomic_write(path, buf.getvalue())

@@ -23,8 +23,11 @@ quadratic cone ``z_0 >= |z_1..|``, ``QR`` the rotated quadratic cone
 variables) these are Clarabel's and SCS's ``A_clarabel = -A``, ``b_clarabel = b``.
 
 Floats are written by ``repr`` (shortest text that reads back to the same double),
-so a file read back gives bit-identical data. :func:`read_cbf` parses text only:
-it shares nothing with the writer but the format.
+so a file read back gives bit-identical data. Comments are ASCII lines: text put into
+one goes through :func:`escape_comment` (a line break, another control character or a
+non-ASCII character written as ``\\n``, ``\\uXXXX``), and :func:`cbf_text` refuses a comment
+that would break the file. :func:`read_cbf` parses text only: it shares nothing with
+the writer but the format.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from elastoplast.errors import InputError
+from elastoplast.limits import as_path, read_bytes
 
 #: the version this module writes
 CBF_VERSION = 3
@@ -45,6 +49,36 @@ DOMAINS = ("F", "L+", "L-", "L=", "Q", "QR")
 #: cone parameters, integer variables): a file using them is not a program of this package
 UNSUPPORTED = ("PSDVAR", "PSDCON", "OBJFCOORD", "FCOORD", "HCOORD", "DCOORD", "POWCONES", "POW*CONES", "INT",
                "CHANGE")
+#: the largest CBF file :func:`read_cbf` reads (its text and its parsed lists are held in memory)
+MAX_CBF_BYTES = 4 * 2**30
+_ESCAPES = {"\n": "\\n", "\r": "\\r", "\t": "\\t", "\\": "\\\\"}
+
+
+def escape_comment(text: str) -> str:
+    """``text`` as one printable ASCII line: ``\\`` doubled, line breaks and tabs as
+    ``\\n``, ``\\r``, ``\\t``, any other control or non-ASCII character as ``\\uXXXX``
+    (``\\UXXXXXXXX`` beyond the basic plane)."""
+    out = []
+    for ch in str(text):
+        code = ord(ch)
+        if ch in _ESCAPES:
+            out.append(_ESCAPES[ch])
+        elif 0x20 <= code < 0x7F:
+            out.append(ch)
+        else:
+            out.append(f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}")
+    return "".join(out)
+
+
+def _check_comment(line: str) -> None:
+    """Refuse comment text that is not one printable ASCII line (it would break the file)."""
+    if not isinstance(line, str):
+        raise TypeError(f"a CBF comment is text, got {type(line).__name__}")
+    bad = [ch for ch in line if not 0x20 <= ord(ch) < 0x7F]
+    if bad:
+        what = "a line break" if any(ch in "\n\r\v\f\x1c\x1d\x1e\x85\u2028\u2029" for ch in bad) else \
+            "a control or non-ASCII character"
+        raise ValueError(f"a CBF comment holds {what} ({bad[0]!r}): pass it through escape_comment")
 
 
 @dataclass
@@ -91,6 +125,8 @@ def _check(prog: CBFProgram) -> None:
 def cbf_text(prog: CBFProgram) -> str:
     """The CBF file of ``prog`` as one string."""
     _check(prog)
+    for line in prog.comments:
+        _check_comment(line)
     out = [f"# {line}" for line in prog.comments]
     out += ["VER", str(prog.version), "", "OBJSENSE", prog.sense, ""]
     for key, cones, size in (("VAR", prog.var_cones, prog.n), ("CON", prog.con_cones, prog.m)):
@@ -112,7 +148,7 @@ def cbf_text(prog: CBFProgram) -> str:
     i = np.flatnonzero(prog.b)
     if i.size:
         out += ["BCOORD", str(i.size)] + [f"{a} {v}" for a, v in zip(i.tolist(), _floats(prog.b[i]))] + [""]
-    return "\n".join(out)
+    return "\n".join(out).rstrip("\n") + "\n"  # one final newline
 
 
 def write_cbf(path: str | Path, prog: CBFProgram) -> Path:
@@ -140,11 +176,21 @@ def _lines(text: str) -> list[str]:
 def read_cbf(path: str | Path) -> CBFProgram:
     """Parse a CBF file with scalar variables and constraints (see the module docstring).
 
-    Refuses (``InputError`` naming ``cbf``) what it does not read: matrix variables,
-    integer variables, power and exponential cones' parameters, unknown keywords,
-    indices out of range and counts that do not add up.
+    Refuses (``InputError`` naming ``cbf``) what it does not read: no path, a missing,
+    empty or unreadable file, a folder or device, a file above :data:`MAX_CBF_BYTES`,
+    text that is not ASCII, matrix variables, integer variables, power and exponential
+    cones' parameters, unknown keywords, indices out of range and counts that do not
+    add up.
     """
-    lines = _lines(Path(path).read_text(encoding="ascii"))
+    path = as_path(path, "cbf", "CBF file")
+    raw = read_bytes(path, "cbf", "CBF file", MAX_CBF_BYTES)
+    try:
+        text = raw.decode("ascii")
+    except UnicodeDecodeError as exc:
+        raise InputError("cbf", f"{path} is not a CBF file: byte 0x{raw[exc.start]:02x} at offset {exc.start} is not "
+                                "ASCII text") from None
+    del raw
+    lines = _lines(text)
     pos = 0
 
     def fail(message: str):

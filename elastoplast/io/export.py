@@ -79,7 +79,16 @@ from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import PSI_CAP, Discretization, nondimensionalize
 from elastoplast.fem.material import SQRT_3_2
-from elastoplast.io.cbf import CBFProgram, cbf_text
+from elastoplast.fem.locking import BEARING_FACTOR, SMALL_STRAIN_LIMIT
+from elastoplast.io.cbf import CBFProgram, cbf_text, escape_comment
+from elastoplast.io.export_files import (  # noqa: F401  (read_sidecar, load_npz: part of this module's API)
+    SIDECAR_SUFFIX,
+    check_export_path,
+    load_npz,
+    read_sidecar,
+    sidecar_path,
+    write_pair,
+)
 from elastoplast.io.store import resolve
 from elastoplast.solvers.conic import deviatoric_basis, element_weights
 from elastoplast.version import __version__
@@ -88,7 +97,6 @@ FORMATS = ("cbf", "npz")
 FORMS = ("S", "D")
 #: "cone": the energy in a rotated cone (pure conic, any format); "quadratic": in P (npz only)
 ENERGY = ("cone", "quadratic")
-SIDECAR_SUFFIX = ".json"
 
 
 @dataclass(frozen=True)
@@ -348,8 +356,14 @@ class ExportInfo:
 
     def line(self) -> str:
         """The one-line summary for the command line."""
-        return (f"exported ({self.form}) to {self.path} [{self.format}]: {self.n_variables} variables, {self.n_rows} "
-                f"rows, cones {self.cones}; optimal value = {self.objective}; map back with {self.sidecar}")
+        return (f"exported ({self.form}) to {_one_line(self.path)} [{self.format}]: {self.n_variables} variables, "
+                f"{self.n_rows} rows, cones {self.cones}; optimal value = {self.objective}; map back with "
+                f"{_one_line(self.sidecar)}")
+
+
+def _one_line(path: Path) -> str:
+    """A path for one line of output: control characters (a newline in a file name) escaped."""
+    return "".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii") for ch in str(path))
 
 
 def _cone_summary(cones: list[tuple[str, int]]) -> str:
@@ -362,32 +376,62 @@ def _cone_summary(cones: list[tuple[str, int]]) -> str:
     return ", ".join(f"{cnt} x {d}({sz})" if cnt > 1 else f"{d}({sz})" for d, sz, cnt in out)
 
 
-def sidecar_path(path: str | Path) -> Path:
-    path = Path(path)
-    return path.with_name(path.name + SIDECAR_SUFFIX)
-
-
-def export(disc: Discretization, path: str | Path, format: str = "cbf", form: str = "S", *,
-           energy: str = "cone") -> ExportInfo:
-    """Write (S) (``form="S"``) or (D) of ``disc`` to ``path`` as ``format`` ("cbf" or
-    "npz") and its sidecar to ``path + ".json"``. ``energy="quadratic"`` (npz only) keeps
-    the energy in ``P`` instead of a rotated cone. Returns an :class:`ExportInfo`."""
-    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+def check_export_options(format: str, form: str, energy: str) -> None:
+    """Refuse an unknown format, form or energy, and a quadratic energy in CBF."""
     for name, value, allowed in (("format", format, FORMATS), ("form", form, FORMS), ("energy", energy, ENERGY)):
-        if value not in allowed:
+        if not isinstance(value, str) or value not in allowed:
             raise InputError(name, f"expected one of {', '.join(allowed)}, got {value!r}")
     if format == "cbf" and energy != "cone":
         raise InputError("energy", "CBF has no quadratic objective: use energy='cone' or format='npz'")
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise InputError("out", f"{path.parent} is not a folder")
+
+
+def limit_load_note(disc: Discretization) -> str | None:
+    """A one-line note when the force is plainly above what the body can carry, else None.
+
+    The cheap test of :func:`~elastoplast.fem.locking.check_hardening_carries_load`: a
+    body that flows carries a mean contact pressure of at most ``BEARING_FACTOR`` flow
+    stresses, so with ``F / |Gamma_0|`` above ``BEARING_FACTOR sigma_y`` and ``H = 0`` the
+    force is above the limit load (the program (S) is infeasible, (D) unbounded), and
+    with ``H > 0`` above ``BEARING_FACTOR (sigma_y + H SMALL_STRAIN_LIMIT)`` its answer
+    leaves small strains. Forces between the limit load and this estimate pass unnoticed
+    (``elastoplast limit`` brackets the limit load)."""
+    m = disc.material
+    area = float(disc.contact_area.sum())
+    if area <= 0:
+        return None
+    pressure = disc.force / area
+    flow = m.yield_stress + m.hardening * SMALL_STRAIN_LIMIT
+    if pressure <= BEARING_FACTOR * flow:
+        return None
+    if m.hardening <= 0:
+        return (f"the force {disc.force:g} is above the limit load (mean pressure over the contact zone {pressure:.3g} "
+                f"> {BEARING_FACTOR:g} sigma_y): the exported program has no solution")
+    return (f"the force {disc.force:g} is far above the limit load (mean pressure over the contact zone "
+            f"{pressure:.3g} > {BEARING_FACTOR:g} (sigma_y + {SMALL_STRAIN_LIMIT:g} H)): the optimum leaves small "
+            "strains")
+
+
+def export(disc: Discretization, path: str | Path, format: str = "cbf", form: str = "S", *,
+           energy: str = "cone", protect=()) -> ExportInfo:
+    """Write (S) (``form="S"``) or (D) of ``disc`` to ``path`` as ``format`` ("cbf" or
+    "npz") and its sidecar to ``path + ".json"``. ``energy="quadratic"`` (npz only) keeps
+    the energy in ``P`` instead of a rotated cone. Returns an :class:`ExportInfo`.
+
+    ``path`` is checked before any work (:func:`~elastoplast.io.export_files.check_export_path`,
+    ``InputError`` naming ``path``): an existing file is replaced only when it is an
+    earlier export (its sidecar names it with its SHA-256); ``protect`` lists files never
+    written over (the problem file, its mesh file). Both files appear together or not
+    at all (:func:`~elastoplast.io.export_files.write_pair`)."""
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    check_export_options(format, form, energy)
+    path = check_export_path(path, format, "path", protect)
     built = (stress_form if form == "S" else displacement_form)(disc, energy)
     prog = built.program
     title = "stress" if form == "S" else "displacement"
     prog.comments = [f"elastoplast {__version__}: the {title} form ({form}) of C. Johnson's contact problem (2.1)",
-                     f"variables and rows: see {path.name}.json"]
+                     f"variables and rows: see {escape_comment(path.name + SIDECAR_SUFFIX)}"]
     if format == "cbf":
-        data = cbf_text(prog).encode("ascii")
+        data = cbf_text(prog).encode("ascii")  # cbf_text refuses anything but printable ASCII comments
         rows, n_rows, cones = built.rows, prog.m, _cone_summary(prog.con_cones)
     else:
         cf = clarabel_form(prog, built.P)
@@ -408,12 +452,10 @@ def export(disc: Discretization, path: str | Path, format: str = "cbf", form: st
         buf = io.BytesIO()
         np.savez_compressed(buf, **arrays)
         data = buf.getvalue()
-    path.write_bytes(data)
     objective = ("value(S) = -Pi_h = 1/2 [sigma_hat, sigma_hat] + psi . lam (Solution.value_S)" if form == "S"
                  else "value(D) = Pi_h, the total potential energy (Solution.value_D)")
     meta = _sidecar(disc, built, format, form, energy, rows, n_rows, hashlib.sha256(data).hexdigest(), path.name, objective)
-    side = sidecar_path(path)
-    side.write_text(json.dumps(meta, indent=1), encoding="utf-8")
+    side = write_pair(path, data, json.dumps(meta, indent=1) + "\n", "path")
     return ExportInfo(path, side, format, form, prog.n, n_rows, cones, objective)
 
 
@@ -457,23 +499,6 @@ def _sidecar(disc, built: Built, format, form, energy, rows, n_rows, sha, name, 
     }
 
 
-def read_sidecar(path: str | Path) -> dict[str, Any]:
-    """The sidecar of an exported file (``path`` is the file or its ``.json``)."""
-    path = Path(path)
-    side = path if path.suffix == SIDECAR_SUFFIX else sidecar_path(path)
-    return json.loads(side.read_text(encoding="utf-8"))
-
-
-def load_npz(path: str | Path) -> dict[str, Any]:
-    """An exported ``.npz`` as ``P, q, A, b`` (CSC) and SCS's cone dictionary ``cones``
-    (``z``, ``l``, ``q``)."""
-    with np.load(Path(path)) as f:
-        mats = {name: sp.csc_matrix((f[f"{name}_data"], f[f"{name}_indices"], f[f"{name}_indptr"]),
-                                    shape=tuple(f[f"{name}_shape"])) for name in ("A", "P")}
-        cones = {"z": int(f["zero"]), "l": int(f["nonnegative"]), "q": [int(v) for v in f["second_order"]]}
-        return {**mats, "q": np.array(f["q"]), "b": np.array(f["b"]), "cones": cones}
-
-
 # ----------------------------------------------------------------------------
 # answers back
 # ----------------------------------------------------------------------------
@@ -491,6 +516,9 @@ class ExportAnswer:
 
 
 def _check_meta(disc: Discretization, meta: dict[str, Any]) -> None:
+    needed = ("form", "variables", "rows", "units", "mesh", "duals")
+    if not isinstance(meta, dict) or any(key not in meta for key in needed):
+        raise InputError("meta", f"expected an export's sidecar (read_sidecar), a dict with {', '.join(needed)}")
     mesh = meta.get("mesh", {})
     mine = {"dim": disc.dim, "n_elements": disc.n_elements, "n_free_dofs": disc.n_free,
             "n_contact_nodes": disc.n_contact}
@@ -503,6 +531,23 @@ def _check_meta(disc: Discretization, meta: dict[str, Any]) -> None:
             raise InputError("meta", f"the sidecar's {key} unit is not this problem's")
 
 
+def _vector(v, name: str, ranges: dict[str, Any], size: int | None) -> np.ndarray:
+    """``v`` as a 1-D float array covering every index range of ``ranges`` (of length
+    ``size`` when given), or an InputError naming ``name``."""
+    try:
+        arr = np.asarray(v, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(name, f"expected a vector of numbers, got {type(v).__name__} ({exc})") from None
+    if arr.ndim != 1:
+        raise InputError(name, f"expected a vector (1-D), got an array of shape {arr.shape}")
+    need = max((int(r[1]) for r in ranges.values() if isinstance(r, (list, tuple)) and len(r) == 2), default=0)
+    if size is not None and arr.size != int(size):
+        raise InputError(name, f"has {arr.size} entries; the exported program has {int(size)}")
+    if arr.size < need:
+        raise InputError(name, f"has {arr.size} entries, fewer than the {need} the sidecar's ranges need")
+    return arr
+
+
 def answer_from_solution(disc: Discretization, x, y, meta: dict[str, Any]) -> ExportAnswer:
     """Map a solver's primal ``x`` and dual ``y`` of the exported program described by
     ``meta`` (:func:`read_sidecar`) back to ``(sigma, xi, u_free, U, contact_force)`` in
@@ -510,7 +555,7 @@ def answer_from_solution(disc: Discretization, x, y, meta: dict[str, Any]) -> Ex
     the sidecar's ``duals.convention`` (Clarabel's ``z`` and SCS's ``y`` for npz)."""
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     _check_meta(disc, meta)
-    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    x, y = _vector(x, "x", meta["variables"], meta.get("n_variables")), _vector(y, "y", meta["rows"], None)
     var, rows, un = meta["variables"], meta["rows"], meta["units"]
     S, n, k = un["stress"], disc.n_elements, disc.k
     w = element_weights(disc)

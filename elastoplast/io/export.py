@@ -175,6 +175,15 @@ def _column_block(M: sp.coo_matrix, col0: int, n_cols: int) -> sp.coo_matrix:
     return sp.coo_matrix((M.data, (M.row, M.col + col0)), shape=(M.shape[0], n_cols))
 
 
+def energy_term(rows, blocks, energy: str, t0: int, n_cols: int, s: dict):
+    """The energy of a form: rows of the rotated cone on the energy variable ``t0`` (``energy =
+    "cone"``; returns None), or the upper triangle of ``P`` (``"quadratic"``)."""
+    if energy == "cone":
+        _energy_rows(rows, t0, s["energy_cone_constant"], blocks)
+        return None
+    return _gram_upper(blocks, n_cols, s["energy"])
+
+
 def stress_form(disc: Discretization, energy: str = "cone") -> Built:
     """(S) in the exported variables (module docstring): ``tau~`` (``n k``), ``xi~``
     (``n``, absent when H = 0), ``lam~`` (``n_contact``, domain ``L+``) and, with
@@ -214,11 +223,7 @@ def stress_form(disc: Discretization, energy: str = "cone") -> Built:
     blocks = [_column_block(_kron_blocks(LA.T, n), tau0, n_cols)]
     if has_xi:
         blocks.append(_column_block(sp.diags(np.full(n, 1.0 / np.sqrt(m.hardening))).tocoo(), xi0, n_cols))
-    P = None
-    if energy == "cone":
-        _energy_rows(rows, t0, s["energy_cone_constant"], blocks)
-    else:
-        P = _gram_upper(blocks, n_cols, s["energy"])
+    P = energy_term(rows, blocks, energy, t0, n_cols, s)
     A, b = rows.matrix()
     var_cones = [("F", lam0), ("L+", nc)] + ([("F", 1)] if energy == "cone" else [])
     prog = CBFProgram(c=c, A=A, b=b, var_cones=[vc for vc in var_cones if vc[1] > 0], con_cones=rows.cones)
@@ -264,11 +269,7 @@ def displacement_form(disc: Discretization, energy: str = "cone") -> Built:
     blocks = [elastic]
     if m.hardening > 0:
         blocks.append(_column_block(sp.diags(np.full(n, np.sqrt(m.hardening))).tocoo(), kap0, n_cols))
-    P = None
-    if energy == "cone":
-        _energy_rows(rows, t0, s["energy_cone_constant"], blocks)
-    else:
-        P = _gram_upper(blocks, n_cols, s["energy"])
+    P = energy_term(rows, blocks, energy, t0, n_cols, s)
     A, b = rows.matrix()
     prog = CBFProgram(c=c, A=A, b=b, var_cones=[("F", n_cols)], con_cones=rows.cones)
     variables = {"v": [v0, V0], "V": [V0, p0], "p": [p0, kap0], "kappa": [kap0, t0],

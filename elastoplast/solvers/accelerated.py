@@ -227,11 +227,16 @@ def solve_uzawa_fast(disc, options: FastOptions = FastOptions()) -> Solution:
         return _solve_uzawa_fast(disc, options)
 
 
-def _solve_uzawa_fast(disc, options: FastOptions) -> Solution:
+def start_run(disc, options: FastOptions):
+    """What both variants start with: ``(t_start, timings, nd, units, monitor)``."""
     t_start = time.perf_counter()
-    timings = {"setup": 0.0, "iterations": 0.0, "certificate": 0.0}
     nd, units = nondimensionalize(disc)
     monitor = Monitor("uzawa-fast", disc, nd, units, options, t_start=t_start)
+    return t_start, {"setup": 0.0, "iterations": 0.0, "certificate": 0.0}, nd, units, monitor
+
+
+def _solve_uzawa_fast(disc, options: FastOptions) -> Solution:
+    t_start, timings, nd, units, monitor = start_run(disc, options)
     rho = RHO_SHARE / nd.material.max_stiffness_eigenvalue()
     proj = metric_projection(nd, units.length, np.eye(nd.k), options.factorization, None, options.inner_rtol)
     zero = np.zeros(nd.n_free)
@@ -279,10 +284,7 @@ def solve_alg2(disc, options: FastOptions = FastOptions()) -> Solution:
 
 
 def _solve_alg2(disc, options: FastOptions) -> Solution:
-    t_start = time.perf_counter()
-    timings = {"setup": 0.0, "iterations": 0.0, "certificate": 0.0}
-    nd, units = nondimensionalize(disc)
-    monitor = Monitor("uzawa-fast", disc, nd, units, options, t_start=t_start)
+    t_start, timings, nd, units, monitor = start_run(disc, options)
     r = alg2_penalty(nd.material, options)
     step = alg2_setup(nd, r, options.splitting, options.factorization, units.length, options.inner_rtol)
     zero = np.zeros(nd.n_free)

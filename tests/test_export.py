@@ -42,15 +42,8 @@ from conftest import build, cylinder_dict, sphere_quarter_dict
 import elastoplast as ep
 from elastoplast.errors import InputError
 from elastoplast.io.cbf import read_cbf
-from elastoplast.io.export import (
-    answer_from_solution,
-    displacement_form,
-    export,
-    load_npz,
-    read_sidecar,
-    solution_from_answer,
-    stress_form,
-)
+from elastoplast.io.export import answer_from_solution, displacement_form, export, solution_from_answer, stress_form
+from elastoplast.io.export_files import load_npz, read_sidecar
 from elastoplast.io.store import resolve
 from elastoplast.solvers.backends import solve_scs
 

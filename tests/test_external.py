@@ -26,7 +26,8 @@ from conftest import build, cylinder_dict
 
 import elastoplast as ep
 from elastoplast.errors import InputError
-from elastoplast.io.export import export, load_npz
+from elastoplast.io.export import export
+from elastoplast.io.export_files import load_npz
 from elastoplast.io.external import (
     YIELDS,
     ClarabelExportOptions,

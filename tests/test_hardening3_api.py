@@ -259,3 +259,17 @@ def test_bounds_and_results_refuse_bad_arguments(case, name):
     with pytest.raises(ep.InputError) as exc:
         call()
     assert exc.value.field == field, exc.value
+
+
+def test_a_discretization_cannot_be_edited_in_place(case):
+    """Found in the third pass: `d.mesh.points[:] *= 2` then a solve gave the old answer,
+    converged (B was built from the old points), and `d.psi[:] = -1` bypassed psi >= 0.
+    The arrays operators are built from are read-only views; a changed problem is a new one."""
+    disc = case["disc"]
+    for name, array in [("points", disc.mesh.points), ("cells", disc.mesh.cells), ("psi", disc.psi),
+                        ("volumes", disc.volumes), ("B.data", disc.B.data)]:
+        with pytest.raises(ValueError, match="read-only"):
+            array[...] = 0
+    points = np.array(disc.mesh.points)  # the caller's own copy stays writable
+    points *= 2.0
+    assert ep.Mesh(points, disc.mesh.cells, dict(disc.mesh.groups)).points.base is points

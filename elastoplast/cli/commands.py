@@ -369,7 +369,8 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from elastoplast.io.export import check_export_options, check_export_path, export, limit_load_note
+    from elastoplast.io.export import check_export_options, export, limit_load_note
+    from elastoplast.io.export_files import check_export_path
     from elastoplast.problem.definition import read_toml
 
     path = Path(args.problem) if args.problem else default_problem_path()

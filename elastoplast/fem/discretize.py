@@ -30,6 +30,7 @@ from elastoplast.fem.material import Material, n_components
 from elastoplast.mesh.base import Mesh
 from elastoplast.mesh.topology import FacetTopology, boundary_facets, facet_topology
 from elastoplast.problem.definition import Problem
+from elastoplast.mesh.base import read_only
 
 
 @dataclass(frozen=True)
@@ -320,17 +321,18 @@ def discretize(problem: Problem) -> Discretization:
 
     psi = problem.obstacle.psi(mesh.points[contact_nodes, :-1], field="obstacle")
     area = _flat_bottom_area(mesh, tol)[contact_nodes]
+    B.data = read_only(B.data)  # operators of one mesh: an edit in place would silently change the problem
     disc = Discretization(
         problem=problem,
-        volumes=volumes,
-        grads=grads,
+        volumes=read_only(volumes),
+        grads=read_only(grads),
         B=B,
         free=free,
         fixed=fixed,
         contact_nodes=contact_nodes,
         N=N,
-        psi=psi,
-        contact_area=area,
+        psi=read_only(psi),
+        contact_area=read_only(area),
     )
     check_scales(disc)
     return disc

@@ -27,6 +27,13 @@ from elastoplast.errors import InputError
 from elastoplast.errors import finite_float, short_repr
 
 
+def read_only(a) -> np.ndarray:
+    """A read-only view of ``a`` (the caller's own array stays as it was)."""
+    view = np.asarray(a).view()
+    view.flags.writeable = False
+    return view
+
+
 @dataclass(frozen=True)
 class Mesh:
     """Nodes ``points (n_nodes, d)``, simplices ``cells (n_el, d+1)``, named
@@ -42,6 +49,9 @@ class Mesh:
     other_groups: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        # read-only views: an edit in place (mesh.points *= 2) would leave every operator built on them stale
+        object.__setattr__(self, "points", read_only(self.points))
+        object.__setattr__(self, "cells", read_only(self.cells))
         object.__setattr__(self, "groups", MappingProxyType(dict(self.groups)))
         object.__setattr__(self, "other_groups", MappingProxyType(dict(self.other_groups)))
 

@@ -1,6 +1,6 @@
 """Where Newton's time goes at a million tetrahedra (issue "Newton at the speed of its linear algebra").
 
-    python benchmarks/scale/profile.py            # n = 17 and 35: 118k and 1.03M tetrahedra (about 10 minutes here)
+    python benchmarks/scale/profile.py            # n = 17 and 35: 118k and 1.03M tetrahedra (about 8 minutes here)
     python benchmarks/scale/profile.py --quick    # n = 8 and 13: 12k and 53k tetrahedra (about a minute), into quick/
     python benchmarks/scale/profile.py --report   # profile.md again from profile.json
 
@@ -22,7 +22,13 @@ hierarchy was set up, the forcing term, the line-search step and the KKT residua
 (from ``Solution.history``), Newton's own timers (``Solution.timings``), and the
 profile's sampled time grouped into categories (assembly, AMG set-up, CG, line search,
 certificate, ...; :data:`CATEGORIES`) with the heaviest frames. The profiler's full
-text output is written beside the record as ``profile_n<n>.txt``.
+text output is written beside the record as ``profile_n<n>.txt``. The full mode runs
+each size a second time in a process without the profiler (``control``): the
+profiler's overhead in time and memory. pyinstrument charges the time since its last
+sample to the stack at the first Python call or return after ``interval``, so work
+shorter than the interval between two calls (CG's vector updates between a
+matrix-vector product and a V-cycle) can be charged to the next call: small
+categories are exact only to about one interval per sample.
 
 Writes ``profile.json`` and ``profile.md`` (a side study of benchmarks/scale) and the
 ``profile_n<n>.txt`` files beside this file (``--out`` to change).
@@ -205,6 +211,20 @@ def breakdown(solve_frame) -> tuple[dict[str, float], dict[str, list[dict]]]:
 # ----------------------------------------------------------------------------
 
 
+def run_control(n: int) -> dict:
+    """The same solve without the profiler (its overhead in time and memory)."""
+    import elastoplast as ep
+
+    disc, mesh_s, disc_s = discretization_timed(n)
+    w0, c0 = time.perf_counter(), time.process_time()
+    sol = ep.solve(disc, "newton", tol=TOL)
+    solve_s, solve_cpu = time.perf_counter() - w0, time.process_time() - c0
+    return {"mesh_s": mesh_s, "discretize_s": disc_s, "solve_wall_s": solve_s, "solve_cpu_s": solve_cpu,
+            "peak_gb": peak_memory() / 1e9, "newton_steps": sol.iterations, "status": sol.status.value,
+            "cg_iterations": [row.get("cg_iterations") for row in sol.history[1:]],
+            "timings": {k: float(v) for k, v in sol.timings.items()}}
+
+
 def run_case(n: int, out: str, interval: float) -> dict:
     import numpy as np
     from pyinstrument import Profiler
@@ -252,7 +272,7 @@ def run_case(n: int, out: str, interval: float) -> dict:
         "peak_gb": peak / 1e9, "interval_s": interval,
         "profile": {"sampled_solve_s": solve_frame.time, "sampled_mesh_s": mesh_frame.time if mesh_frame else None,
                     "sampled_discretize_s": disc_frame.time if disc_frame else None,
-                    "sampled_total_s": root.time, "categories": cats, "top_frames": top,
+                    "sampled_total_s": root.time, "samples": session.sample_count, "categories": cats, "top_frames": top,
                     "text_file": f"profile_n{n}.txt"},
         "timings": {k: float(v) for k, v in sol.timings.items()},
         "steps": steps,
@@ -268,11 +288,14 @@ def measure(mode: str, out: Path) -> dict:
         if "error" in rec:
             rec = {"n": n, **rec}
         rec["process_s"] = time.perf_counter() - t0
+        if mode == "full" and "error" not in rec:
+            rec["control"] = run_child(__file__, {"n": n, "control": True})
         results["records"].append(rec)
         print(f"n={n}: " + (f"error {rec['error']}" if "error" in rec else
               f"{rec['n_elements']:,} el, solve {rec['solve_wall_s']:.1f} s wall / {rec['solve_cpu_s']:.1f} s CPU, "
               f"{rec['newton_steps']} steps, CG {[s['cg_iterations'] for s in rec['steps']]}, "
-              f"{rec['peak_gb']:.2f} GB"), flush=True)
+              f"{rec['peak_gb']:.2f} GB; unprofiled {rec.get('control', {}).get('solve_wall_s', float('nan')):.1f} s "
+              f"wall, {rec.get('control', {}).get('peak_gb', float('nan')):.2f} GB"), flush=True)
         write_record(out, results, TITLE, report, study=STUDY)
     return results
 
@@ -345,6 +368,17 @@ def report(results: dict) -> str:
     for k in keys:
         label = {"factorization": "factorization (AMG set-up + face systems)", "solve": "solve (CG)"}.get(k, k)
         lines.append(f"| {label} | " + " | ".join(f"{r['timings'].get(k, 0.0):.1f}" for r in recs) + " |")
+    ctl = [r for r in recs if "control" in r and "error" not in r["control"]]
+    if ctl:
+        lines += ["", "## The profiler's overhead: the same solve in a process without it", "",
+                  "| tetrahedra | solve wall s (profiled / not) | solve CPU s (profiled / not) | peak GB (profiled / not) "
+                  "| samples | Newton steps | CG iterations per step (not profiled) |", "|---|---|---|---|---|---|---|"]
+        for r in ctl:
+            c = r["control"]
+            lines.append(f"| {r['n_elements']:,} | {r['solve_wall_s']:.1f} / {c['solve_wall_s']:.1f} | "
+                         f"{r['solve_cpu_s']:.1f} / {c['solve_cpu_s']:.1f} | {r['peak_gb']:.2f} / {c['peak_gb']:.2f} | "
+                         f"{r['profile'].get('samples', '')} | {r['newton_steps']} / {c['newton_steps']} | "
+                         f"{c['cg_iterations']} |")
     for r in recs:
         lines += ["", f"## Newton steps at {r['n_elements']:,} tetrahedra (n = {r['n']})", "",
                   "| step | CG iterations | new AMG hierarchy | forcing eta | CG residual | line-search alpha (trials) | "
@@ -372,7 +406,8 @@ def report(results: dict) -> str:
 def main(argv=None) -> int:
     return run_record(__doc__, "n = 8 and 13 (12k and 53k tetrahedra)", HERE, TITLE, "profile", measure, report,
                       argv=argv, study=STUDY,
-                      child=lambda spec: run_case(spec["n"], spec["out"], spec["interval"]))
+                      child=lambda spec: run_control(spec["n"]) if spec.get("control") else
+                      run_case(spec["n"], spec["out"], spec["interval"]))
 
 
 if __name__ == "__main__":

@@ -70,6 +70,7 @@ from elastoplast.limits import (
     shown,
 )
 from elastoplast.options import SolverOptions
+from elastoplast.cli.printing import discretize_file, figure, problem_line
 
 #: how the answer's arrays are named in messages
 FIELD = "ANSWER"
@@ -416,7 +417,7 @@ def certify_answer(disc: Discretization, answer: Mapping[str, Any], tol: float, 
                             iterations=0, timings={})
         kkt = certify(disc, sol.sigma, sol.xi, u, U, contact_force=sol.contact_force)
     above = failed_residuals(kkt, tol)
-    reasons = [f"{', '.join(above)} above tol {tol:g} (worst {_figure(kkt.worst, '.2e')})"] if above else []
+    reasons = [f"{', '.join(above)} above tol {tol:g} (worst {figure(kkt.worst, '.2e')})"] if above else []
     finite = all(np.all(np.isfinite(a)) for a in (sol.sigma, sol.xi, sol.contact_force)) and math.isfinite(kkt.worst)
     if not finite:  # the input is finite and below MAX_MAGNITUDE: the arithmetic overflowed all the same
         reasons = [f"the certificate overflowed (displacements up to {np.abs(u).max(initial=abs(U)):.3g}): not "
@@ -425,7 +426,7 @@ def certify_answer(disc: Discretization, answer: Mapping[str, Any], tol: float, 
         reasons.append(sol.message)
     status = Status.FAILED if reasons else Status.CONVERGED
     message = "; ".join(reasons) if reasons else (f"every KKT residual at most tol {tol:g} (worst "
-                                                  f"{_figure(kkt.worst, '.2e')})")
+                                                  f"{figure(kkt.worst, '.2e')})")
     timings = {"check": seconds + time.perf_counter() - t0}
     return replace(sol, u=u, kkt=kkt, status=status, message=message, timings=timings)
 
@@ -459,26 +460,11 @@ def check_magnitudes(disc: Discretization, u: np.ndarray, U: float, sigma: np.nd
 # ----------------------------------------------------------------------------
 
 
-def _figure(value: Any, spec: str) -> str:
-    """A printed figure; ``n/a`` for one that is not a finite number."""
-    try:
-        return format(value, spec) if math.isfinite(value) else "n/a"
-    except (TypeError, ValueError):
-        return "n/a"
-
-
 def residual_lines(kkt: KKTResiduals, tol: float) -> list[str]:
     """One line per residual: name, value, the comparison with ``tol``, ok or FAIL."""
     width = max(len(name) for name in kkt.as_dict())
     return [f"{name:<{width}}  {value:.2e} {'<=' if value <= tol else '> '} {tol:.3g}  "
             f"{'ok' if value <= tol else 'FAIL'}" for name, value in kkt.as_dict().items()]
-
-
-def _discretize(problem_path: Path, data: dict) -> Discretization:
-    from elastoplast.fem.discretize import discretize
-    from elastoplast.problem.definition import problem_from_dict
-
-    return discretize(problem_from_dict(data, base_dir=problem_path.parent))
 
 
 def _bounds(disc: Discretization, sol: Solution):
@@ -535,7 +521,7 @@ def run_check(problem_path: str | Path, answer_path: str | Path, tol: float | No
     check_input_file(as_path(answer_path, FIELD, "answer file"), FIELD, "answer file")  # before the mesh is built
     if out is not None:
         check_out_keeps_inputs(out, problem_path, Path(answer_path))
-    disc = _discretize(problem_path, data)
+    disc = discretize_file(problem_path, data)
     answer = read_answer(answer_path, disc)
     if bounds:
         from elastoplast.bounds.lower import (
@@ -547,9 +533,8 @@ def run_check(problem_path: str | Path, answer_path: str | Path, tol: float | No
         check_lower_bound_size(disc, LowerBoundOptions(), factor=SEQUENCE_MEMORY_FACTOR)
     if not quiet:
         stresses = "sigma, xi as given" if answer["sigma"] is not None else "stresses by the return mapping of u"
-        print(f"{problem_path.name}: {disc.dim}D, {disc.n_elements} elements, {disc.mesh.n_nodes} nodes, "
-              f"{disc.n_contact} contact nodes; checking {Path(answer_path).name} ({stresses}), tol {tol:g}"
-              + ("; then the bounds" if bounds else ""), file=sys.stderr)
+        print(problem_line(problem_path, disc, f"checking {Path(answer_path).name} ({stresses}), tol {tol:g}"
+                                                + ("; then the bounds" if bounds else "")), file=sys.stderr)
     sol = certify_answer(disc, answer, tol, seconds=time.perf_counter() - t0)
     report = _bounds(disc, sol) if bounds else None  # before any output: it may refuse the input (load.force)
     for line in residual_lines(sol.kkt, tol):
@@ -592,7 +577,7 @@ def check_out_keeps_inputs(out: str | Path, problem_path: Path, answer_path: Pat
 def verdict_line(sol: Solution, report, certified: bool) -> str:
     """``certified: ...`` or ``NOT certified: ...`` with the reason."""
     if certified:
-        return f"certified: {sol.message}; U = {_figure(sol.U, '.6g')}, duality gap {_figure(sol.duality_gap, '.2e')}"
+        return f"certified: {sol.message}; U = {figure(sol.U, '.6g')}, duality gap {figure(sol.duality_gap, '.2e')}"
     if not sol.converged:
         return f"NOT certified: {sol.message}"
     return (f"NOT certified: the KKT residuals pass, the bounds do not (upper: {report.upper.message}; lower: "

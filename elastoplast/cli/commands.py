@@ -3,7 +3,6 @@
 from __future__ import annotations
 import argparse
 import contextlib
-import math
 import sys
 import tomllib
 import warnings
@@ -12,6 +11,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping
 from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK
 from elastoplast.errors import FIELD_WIDTH, InputError, elide
+from elastoplast.cli.printing import discretize_file, figure, problem_line
 
 
 
@@ -125,13 +125,9 @@ def _named_as_flags(command: str) -> Iterator[None]:
 
 
 def _discretize(path: Path, data: dict, quiet: bool, what: str):
-    from elastoplast.fem.discretize import discretize
-    from elastoplast.problem.definition import problem_from_dict
-
-    disc = discretize(problem_from_dict(data, base_dir=path.parent))
+    disc = discretize_file(path, data)
     if not quiet:
-        print(f"{path.name}: {disc.dim}D, {disc.n_elements} elements, {disc.mesh.n_nodes} nodes, "
-              f"{disc.n_contact} contact nodes; {what}", file=sys.stderr)
+        print(problem_line(path, disc, what), file=sys.stderr)
     return disc
 
 
@@ -143,23 +139,15 @@ def _solve(args: argparse.Namespace) -> int:
     disc = _discretize(path, data, args.quiet, f"method {method}")
     sol = solve(disc, method, opts)
     data = write_results(args.out, disc, sol, field="--out")
-    print(f"{sol.status.value}: U = {_figure(sol.U, '.6g')}, max contact pressure = "
-          f"{_figure(data['max_contact_pressure'], '.6g')}, contact radius = {_figure(data['contact_radius'], '.4g')}, "
-          f"plastic volume = {_figure(100 * data['plastic_volume_fraction'], '.2f')}%")
-    print(f"KKT worst residual {_figure(sol.kkt.worst, '.2e')}, duality gap {_figure(sol.duality_gap, '.2e')}, "
+    print(f"{sol.status.value}: U = {figure(sol.U, '.6g')}, max contact pressure = "
+          f"{figure(data['max_contact_pressure'], '.6g')}, contact radius = {figure(data['contact_radius'], '.4g')}, "
+          f"plastic volume = {figure(100 * data['plastic_volume_fraction'], '.2f')}%")
+    print(f"KKT worst residual {figure(sol.kkt.worst, '.2e')}, duality gap {figure(sol.duality_gap, '.2e')}, "
           f"{sol.iterations} iterations, {sol.time_s:.2f} s -> {Path(args.out) / 'summary.json'}")
     if not sol.converged:
         print(f"not converged: {sol.message}", file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return EXIT_OK
-
-
-def _figure(value: Any, spec: str) -> str:
-    """A printed figure; ``n/a`` for one that is not a finite number (a diverged run's NaN)."""
-    try:
-        return format(value, spec) if math.isfinite(value) else "n/a"
-    except (TypeError, ValueError):
-        return "n/a"
 
 
 def _bounds(args: argparse.Namespace) -> int:
@@ -188,11 +176,11 @@ def _bounds(args: argparse.Namespace) -> int:
     report = certified_bounds(disc, sol, method, bracket=not args.no_bracket, options=opts)
     b = report.bounds
     write_results(args.out, disc, sol, extra=report.as_dict(), field="--out", **gap_fields(disc, b))
-    bracket = "" if args.no_bracket else (f"; U in [{_figure(report.U_lower, '.6g')}, "
-                                          f"{_figure(report.U_upper, '.6g')}]")
-    print(f"energy in [{_figure(b.energy_lower, '.8g')}, {_figure(b.energy_upper, '.8g')}] (relative gap "
-          f"{_figure(b.energy_gap_rel, '.2e')}){bracket} (discrete U = {_figure(sol.U, '.6g')}); stress error <= "
-          f"{_figure(b.stress_error_bound, '.4g')} ({_figure(100 * b.stress_error_bound_rel, '.2f')}%); "
+    bracket = "" if args.no_bracket else (f"; U in [{figure(report.U_lower, '.6g')}, "
+                                          f"{figure(report.U_upper, '.6g')}]")
+    print(f"energy in [{figure(b.energy_lower, '.8g')}, {figure(b.energy_upper, '.8g')}] (relative gap "
+          f"{figure(b.energy_gap_rel, '.2e')}){bracket} (discrete U = {figure(sol.U, '.6g')}); stress error <= "
+          f"{figure(b.stress_error_bound, '.4g')} ({figure(100 * b.stress_error_bound_rel, '.2f')}%); "
           f"{'certified' if report.certified else 'NOT certified'} -> {Path(args.out) / 'summary.json'}")
     if not report.certified:
         print(f"not certified: upper: {report.upper.message}; lower: {report.lower.message}", file=sys.stderr)

@@ -258,8 +258,9 @@ def small_strain_note(disc: Discretization, u_free: np.ndarray) -> str:
 def within_small_strains(disc: Discretization, sol: Solution) -> Solution:
     """``sol``, with a CONVERGED status turned FAILED (and the reason appended to its
     message) when its strains leave the small-strain model (:func:`small_strain_note`).
-    :func:`make_solution` applies it to every candidate; the registry applies it again
-    to what a method returns, whatever status the method settled on afterwards."""
+    :func:`make_solution` judges every candidate so; a method that settles on CONVERGED
+    after building its answer (the conic methods, whose certificate overrides the
+    interior point's own word) applies this to the answer it returns."""
     if sol.status is not Status.CONVERGED:
         return sol
     beyond = small_strain_note(disc, disc.free_displacement(sol.u))

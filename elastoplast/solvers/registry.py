@@ -19,7 +19,7 @@ import inspect
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
-from elastoplast.certificate.solution import Solution, within_small_strains
+from elastoplast.certificate.solution import Solution
 from elastoplast.errors import InputError, expect, short_repr
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.locking import check_hardening_carries_load, check_perfect_plasticity
@@ -189,12 +189,13 @@ def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOpt
     """Solve (2.1) by ``method`` (a key of :data:`METHODS`, ``package.module:object``
     or an entry point's name: :func:`get_method`), with options given
     either as an options object or as keywords (not both). Whatever the method, an
-    answer whose strains leave the small-strain model is not ``converged``
-    (:func:`~elastoplast.certificate.solution.within_small_strains`)."""
+    answer whose strains leave the small-strain model is not ``converged``: every
+    answer is built by :func:`~elastoplast.certificate.solution.make_solution`, which
+    judges its strains."""
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     if options is not None and values:
         raise InputError("options", "give an options object or keyword options, not both")
     m = get_method(method)
     opts = method_options(method, options if options is not None else values)
     check_solvable(disc, m.name, opts)
-    return within_small_strains(disc, m.run(disc, opts))
+    return m.run(disc, opts)

@@ -109,6 +109,19 @@ def check_perfect_plasticity(disc) -> None:
                      f"discrete limit load lies far above the true one; {instead}")
 
 
+def overload(disc) -> tuple[float, float] | None:
+    """``(mean contact pressure F / |Gamma_0|, flow stress sigma_y + H SMALL_STRAIN_LIMIT)`` when
+    the pressure exceeds :data:`BEARING_FACTOR` flow stresses (the force is then far above
+    what the body carries within small strains), else None."""
+    m = disc.material
+    area = float(disc.contact_area.sum())
+    if area <= 0:
+        return None
+    pressure = disc.force / area
+    flow = m.yield_stress + m.hardening * SMALL_STRAIN_LIMIT
+    return (pressure, flow) if pressure > BEARING_FACTOR * flow else None
+
+
 def check_hardening_carries_load(disc) -> None:
     """Refuse, on a mesh whose P1 elements lock, a force its hardening cannot carry within
     small strains: the neighbourhood of H = 0 that :func:`check_perfect_plasticity` refuses.
@@ -130,13 +143,10 @@ def check_hardening_carries_load(disc) -> None:
     on the crossed mesh); ``elastoplast bounds`` measures how far it is from the continuum.
     """
     m = disc.material
-    area = float(disc.contact_area.sum())
-    if m.hardening <= 0 or area <= 0:  # H = 0 is check_perfect_plasticity's
+    excess = overload(disc)
+    if m.hardening <= 0 or excess is None:  # H = 0 is check_perfect_plasticity's
         return
-    pressure = disc.force / area
-    flow = m.yield_stress + m.hardening * SMALL_STRAIN_LIMIT
-    if pressure <= BEARING_FACTOR * flow:
-        return
+    pressure, flow = excess
     mesh = disc.mesh
     if not np.any(locking_elements(mesh.points, mesh.cells)):
         return

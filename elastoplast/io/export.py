@@ -92,6 +92,7 @@ from elastoplast.io.export_files import (  # noqa: F401  (read_sidecar, load_npz
 from elastoplast.io.store import resolve
 from elastoplast.solvers.conic import deviatoric_basis, element_weights
 from elastoplast.version import __version__
+from elastoplast.fem.locking import overload
 
 FORMATS = ("cbf", "npz")
 FORMS = ("S", "D")
@@ -396,15 +397,11 @@ def limit_load_note(disc: Discretization) -> str | None:
     with ``H > 0`` above ``BEARING_FACTOR (sigma_y + H SMALL_STRAIN_LIMIT)`` its answer
     leaves small strains. Forces between the limit load and this estimate pass unnoticed
     (``elastoplast limit`` brackets the limit load)."""
-    m = disc.material
-    area = float(disc.contact_area.sum())
-    if area <= 0:
+    excess = overload(disc)
+    if excess is None:
         return None
-    pressure = disc.force / area
-    flow = m.yield_stress + m.hardening * SMALL_STRAIN_LIMIT
-    if pressure <= BEARING_FACTOR * flow:
-        return None
-    if m.hardening <= 0:
+    pressure, _ = excess
+    if disc.material.hardening <= 0:
         return (f"the force {disc.force:g} is above the limit load (mean pressure over the contact zone {pressure:.3g} "
                 f"> {BEARING_FACTOR:g} sigma_y): the exported program has no solution")
     return (f"the force {disc.force:g} is far above the limit load (mean pressure over the contact zone "

@@ -18,13 +18,14 @@ from elastoplast.bounds.lower import LowerBound, LowerBoundOptions, solve_lower_
 from elastoplast.bounds.static import StaticCertificate, StaticField, certify_static, dual_energy
 from elastoplast.errors import InputError
 from elastoplast.bounds.limit import KinematicBound, LimitBracket, LimitOptions, kinematic_limit_load, limit_load
-from elastoplast.fem.material import Material, return_mapping, von_mises
+from elastoplast.fem.material import Material, Prestate, return_mapping, von_mises
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
 from elastoplast.problem.definition import (Boundary, Obstacle, Problem, load_problem, make_material, problem_from_dict,
                                            read_toml)
 from elastoplast.mesh.refinement import BisectionState, dorfler_mark, prolong_p1, refine, shape_quality
 from elastoplast.certificate.solution import Solution, Status, make_solution, summary
 from elastoplast.solvers.newton import NewtonOptions, solve_newton
+from elastoplast.solvers.path import PathResult, PathStep, solve_path
 from elastoplast.solvers.accelerated import FastOptions
 from elastoplast.options import SolverOptions
 from elastoplast.solvers.registry import METHODS, method_options, solve
@@ -37,8 +38,8 @@ __all__ = [
     "METHODS", "Material", "Mesh", "NewtonOptions", "Obstacle", "Problem", "Solution", "SolverOptions", "Status",
     "UzawaOptions", "certify", "discretize", "dorfler_mark", "load_problem", "load_sweep", "make_material",
     "make_solution", "method_options", "problem_from_dict", "prolong_p1", "read_mesh", "read_toml", "refine",
-    "return_mapping",
-    "shape_quality", "solve", "solve_conic", "solve_conic_cvxpy", "solve_conic_displacement", "solve_newton",
+    "return_mapping", "Prestate",
+    "shape_quality", "solve", "solve_conic", "solve_conic_cvxpy", "solve_conic_displacement", "solve_newton", "solve_path", "PathResult", "PathStep",
     "solve_uzawa", "structured_mesh", "summary", "von_mises",
     "LowerBound", "LowerBoundOptions", "StaticCertificate", "StaticField", "certify_static", "dual_energy",
     "solve_lower_bound", "static_limit_load",

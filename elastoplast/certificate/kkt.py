@@ -32,7 +32,8 @@ class KKTResiduals:
 
     With ``r = sum_T |T| B_T^T sigma_T`` on the free dofs, ``lam`` the contact
     forces (given, or ``r`` at the vertical contact dofs), ``g = u_d + psi - U``
-    the gaps and ``delta = max(|U|, max|u|)`` the displacement scale:
+    the gaps and ``delta = max(|U|, max|u|)`` the displacement scale (on a step of a
+    loading path also the largest displacement reached before it, ``state.displacement``):
 
     * ``constitutive``: ``||sigma_hat - R(eps(u))||_E / ||R(eps(u))||_E`` in the
       energy norm ``[.,.]`` (the xi part is dropped when H = 0);
@@ -86,6 +87,23 @@ def energy_density(disc: Discretization, sigma: np.ndarray, xi: np.ndarray) -> n
 def energy_norm_sq(disc: Discretization, sigma: np.ndarray, xi: np.ndarray) -> float:
     """``[sigma_hat, sigma_hat] = sum_T |T| (sigma A sigma + xi^2 / H)``."""
     return float(disc.volumes @ energy_density(disc, sigma, xi))
+
+
+def work_density(disc: Discretization, sigma: np.ndarray, dkappa: np.ndarray) -> np.ndarray:
+    """The integrand of (D) per element at the return mapping's ``(sigma, dkappa)``:
+    ``1/2 sigma A sigma + sigma_y kappa + 1/2 H kappa^2`` (``eps - p = A sigma``).
+
+    On a step from a state (``disc.state``: ``sigma_n``, ``xi_n``) it is the
+    step's incremental energy ``W_n``, ``1/2 sigma A sigma - 1/2 sigma_n A sigma_n
+    + (sigma_y + xi_n) dkappa + 1/2 H dkappa^2`` (docs/evolution.md), which is
+    Hencky's at ``sigma_n = 0, xi_n = 0``."""
+    A = disc.material.compliance(disc.dim)
+    m, state = disc.material, disc.state
+    density = 0.5 * np.einsum("ei,ij,ej->e", sigma, A, sigma) + m.yield_stress * dkappa
+    density += 0.5 * m.hardening * dkappa**2
+    if state is not None:
+        density += state.xi * dkappa - 0.5 * np.einsum("ei,ei->e", state.sigma, state.strain)
+    return density
 
 
 def gaps(disc: Discretization, u_free: np.ndarray, U: float) -> np.ndarray:
@@ -190,7 +208,7 @@ def _residuals(disc: Discretization, sigma: np.ndarray, xi: np.ndarray, u_all: n
     u_free = u_all[disc.free]
     F = disc.force
 
-    sigma_R, xi_R, _ = return_mapping(disc.material, disc.strain(u_free))
+    sigma_R, xi_R, _ = return_mapping(disc.material, disc.strain(u_free), disc.state)
     ref = energy_density(disc, sigma_R, xi_R)
     diff = energy_density(disc, sigma - sigma_R, xi - xi_R)
     tiny = np.finfo(float).tiny
@@ -204,7 +222,8 @@ def _residuals(disc: Discretization, sigma: np.ndarray, xi: np.ndarray, u_all: n
     equilibrium = np.linalg.norm(res) / max(np.linalg.norm(magnitude), np.finfo(float).tiny)
 
     g = gaps(disc, u_free, U)
-    delta = max(abs(U), np.abs(u_all).max(initial=0.0), np.finfo(float).tiny)
+    delta = max(abs(U), np.abs(u_all).max(initial=0.0), np.finfo(float).tiny,
+                0.0 if disc.state is None else disc.state.displacement)  # a step: the total displacement's scale
     # a contact force within the round-off of the sum that computes r there is zero to
     # working precision: it must not count against complementarity at a wide-open gap
     resolved = np.where(np.abs(lam) > ROUND_OFF * (disc.N @ (magnitude + propagated(disc, u_free))), lam, 0.0)

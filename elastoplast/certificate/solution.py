@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from elastoplast.certificate.kkt import KKTResiduals, certify, contact_forces, energy_norm_sq, gaps
+from elastoplast.certificate.kkt import KKTResiduals, certify, contact_forces, energy_norm_sq, gaps, work_density
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.locking import SMALL_STRAIN_LIMIT
@@ -73,7 +73,11 @@ class Solution:
 
 
 def value_stress_form(disc: Discretization, sigma: np.ndarray, xi: np.ndarray, lam: np.ndarray) -> float:
-    """Objective of (S): ``1/2 [sigma_hat, sigma_hat] + psi . lam``."""
+    """Objective of (S): ``1/2 [sigma_hat, sigma_hat] + psi . lam``; on a step from a
+    state, ``1/2 [sigma_hat - sigma_hat_n, sigma_hat - sigma_hat_n] + psi . lam`` (the
+    step's ``psi`` holds the last displacement)."""
+    if disc.state is not None:
+        sigma, xi = sigma - disc.state.sigma, xi - disc.state.xi
     return 0.5 * energy_norm_sq(disc, sigma, xi) + float(disc.psi @ lam)
 
 
@@ -82,14 +86,11 @@ def value_displacement_form(disc: Discretization, u_free: np.ndarray, U: float) 
 
     For fixed strains the minimum over plastic strains is reached by the return
     mapping, where ``eps - p = A sigma_R``, so the integrand is
-    ``1/2 sigma_R A sigma_R + sigma_y kappa + 1/2 H kappa^2``.
+    ``1/2 sigma_R A sigma_R + sigma_y kappa + 1/2 H kappa^2``
+    (:func:`~elastoplast.certificate.kkt.work_density`, which also gives a step's).
     """
-    m = disc.material
-    sigma_R, _, kappa = return_mapping(m, disc.strain(u_free))
-    A = m.compliance(disc.dim)
-    elastic = 0.5 * np.einsum("ei,ij,ej->e", sigma_R, A, sigma_R)
-    plastic = m.yield_stress * kappa + 0.5 * m.hardening * kappa**2
-    return float(disc.volumes @ (elastic + plastic)) - disc.force * U
+    sigma_R, _, kappa = return_mapping(disc.material, disc.strain(u_free), disc.state)
+    return float(disc.volumes @ work_density(disc, sigma_R, kappa)) - disc.force * U
 
 
 def contact_radius(disc: Discretization, active: np.ndarray, pressure: np.ndarray) -> float:

@@ -26,7 +26,7 @@ from elastoplast.fem.assembly import (
     rigid_motions,
     scalar_view,
 )
-from elastoplast.fem.material import Material, n_components
+from elastoplast.fem.material import Material, Prestate, n_components
 from elastoplast.mesh.base import Mesh
 from elastoplast.mesh.topology import FacetTopology, boundary_facets, facet_topology
 from elastoplast.problem.definition import Problem
@@ -43,6 +43,10 @@ class Discretization:
     dof of each contact node (``(n_contact, n_free)``), ``psi`` is the obstacle
     at the contact nodes and ``contact_area`` their lumped share of the flat
     boundary ``x_d = 0`` (used only to turn forces into pressures).
+
+    ``state`` is None for Hencky's problem (2.1). A step of a loading path
+    (:meth:`step`) carries the material state it starts from; its unknowns are
+    then the displacement increment, and ``psi`` is the gap the increment sees.
     """
 
     problem: Problem
@@ -55,6 +59,7 @@ class Discretization:
     N: sp.csr_matrix
     psi: np.ndarray
     contact_area: np.ndarray
+    state: Prestate | None = None
 
     @property
     def mesh(self) -> Mesh:
@@ -139,14 +144,32 @@ class Discretization:
         xp = self.mesh.points[self.contact_nodes, :-1]
         return np.linalg.norm(xp - np.asarray(self.problem.obstacle.center), axis=1)
 
+    def step(self, force: float, state: Prestate, u_free: np.ndarray) -> "Discretization":
+        """One backward-Euler step of Prandtl-Reuss' law from ``state`` and the free
+        displacements ``u_free`` of the last step, to the force ``force``: the same
+        operators, the state, and the obstacle shifted by the last vertical
+        displacements (``psi + N u``), so that the contact conditions on the
+        increment are those of the total displacement (docs/evolution.md)."""
+        from dataclasses import replace
+
+        out = replace(self.with_force(force), state=state, psi=read_only(self.base_psi + self.N @ u_free))
+        out.__dict__["base_psi"] = self.base_psi
+        return out
+
+    @cached_property
+    def base_psi(self) -> np.ndarray:
+        """The obstacle itself at the contact nodes (``psi`` of the problem before any step)."""
+        return self.psi
+
     def with_force(self, force: float) -> "Discretization":
         """The same operators for another load (nothing is rebuilt); ``force`` is
         checked as the problem file's ``load.force`` (:meth:`Problem.with_force`)."""
         from dataclasses import replace
 
         out = replace(self, problem=self.problem.with_force(force))
-        if "facet_topology" in self.__dict__:  # same mesh and groups
-            out.__dict__["facet_topology"] = self.facet_topology
+        for name in ("facet_topology", "base_psi", "layout", "free_view"):  # same mesh, groups and obstacle
+            if name in self.__dict__:
+                out.__dict__[name] = self.__dict__[name]
         return out
 
 
@@ -432,6 +455,7 @@ def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
             B=(disc.B * L).tocsr(),
             psi=np.minimum(disc.psi / units.displacement, PSI_CAP),
             contact_area=disc.contact_area / L ** (d - 1),
+            state=None if disc.state is None else disc.state.scaled(S, S / m.E, units.displacement),
         ),
         units,
     )

@@ -91,7 +91,55 @@ class Material:
         return max(3.0 * self.bulk, 2.0 * self.mu)
 
 
-def return_mapping(material: Material, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class Prestate:
+    """The material state a backward-Euler step of Prandtl-Reuss' law starts from.
+
+    ``sigma`` ``(n, k)`` and ``xi`` ``(n,)`` are the stresses and hardening
+    stresses at the end of the last step; ``strain = A sigma`` is the elastic
+    strain they hold, computed once in the real material's compliance (the
+    proximal maps of ALG2 use other moduli but the same shift). The step's
+    return mapping is Hencky's at the shifted strain ``eps + A sigma`` with the
+    yield stress raised to ``sigma_y + xi`` (see :func:`return_mapping`).
+    ``displacement``: the largest displacement the body has reached (the scale
+    of the step's total displacement, for the certificate's relative residuals).
+    """
+
+    sigma: np.ndarray
+    xi: np.ndarray
+    strain: np.ndarray
+    displacement: float = 0.0
+
+    @classmethod
+    def of(cls, material: "Material", sigma: np.ndarray, xi: np.ndarray, displacement: float = 0.0) -> "Prestate":
+        sigma = np.asarray(sigma, dtype=float)
+        dim = 2 if sigma.shape[-1] == 4 else 3
+        return cls(sigma, np.asarray(xi, dtype=float), sigma @ material.compliance(dim), float(displacement))
+
+    def rows(self, index) -> "Prestate":
+        """The state of the elements ``index`` (an index array or a mask)."""
+        return Prestate(self.sigma[index], self.xi[index], self.strain[index], self.displacement)
+
+    def scaled(self, stress: float, strain: float, displacement: float = 1.0) -> "Prestate":
+        """The same state in other units (stresses divided by ``stress``, strains by
+        ``strain``, displacements by ``displacement``)."""
+        return Prestate(self.sigma / stress, self.xi / stress, self.strain / strain, self.displacement / displacement)
+
+
+def _trial(material: Material, eps: np.ndarray, state: Prestate | None):
+    """``(sigma_tr, s, |s|, f)`` of the radial return: the trial stress, its deviator
+    and norm, and the yield function ``sqrt(3/2)|s| - sigma_y - xi_n``."""
+    dim = 2 if eps.shape[-1] == 4 else 3
+    shifted = eps if state is None else eps + state.strain
+    sigma = shifted @ material.stiffness(dim)
+    s = deviator(sigma)
+    norm_s = np.linalg.norm(s, axis=-1)
+    limit = material.yield_stress if state is None else material.yield_stress + state.xi
+    return sigma, s, norm_s, SQRT_3_2 * norm_s - limit
+
+
+def return_mapping(material: Material, eps: np.ndarray,
+                   state: Prestate | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closed-form projection of ``(C eps, 0)`` onto the admissible set D.
 
     This is the map R of docs/certificate.md, applied to every row of ``eps``
@@ -103,19 +151,22 @@ def return_mapping(material: Material, eps: np.ndarray) -> tuple[np.ndarray, np.
                  sigma = sigma_tr - 2 mu sqrt(3/2) dkappa s/|s|,  xi = H dkappa
 
     Returns ``(sigma, xi, dkappa)``; ``dkappa`` is the equivalent plastic strain.
+
+    With a ``state`` (one row per row of ``eps``) this is the step's map R_n of
+    docs/evolution.md: the projection of ``(sigma_n + C eps, xi_n)``, i.e. the
+    trial stress ``C (eps + A sigma_n)``, the yield stress ``sigma_y + xi_n``, and
+    ``xi = xi_n + H dkappa``; ``dkappa`` is then the step's increment.
     """
-    dim = 2 if eps.shape[-1] == 4 else 3
-    sigma = eps @ material.stiffness(dim)
-    s = deviator(sigma)
-    norm_s = np.linalg.norm(s, axis=-1)
-    f = SQRT_3_2 * norm_s - material.yield_stress
+    sigma, s, norm_s, f = _trial(material, eps, state)
     dkappa = np.where(f > 0.0, f, 0.0) / (3.0 * material.mu + material.hardening)
     safe = np.where(norm_s > 0.0, norm_s, 1.0)
     sigma = sigma - (2.0 * material.mu * SQRT_3_2 * dkappa / safe)[:, None] * s
-    return sigma, material.hardening * dkappa, dkappa
+    xi = material.hardening * dkappa
+    return sigma, (xi if state is None else state.xi + xi), dkappa
 
 
-def consistent_tangent(material: Material, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def consistent_tangent(material: Material, eps: np.ndarray,
+                       state: Prestate | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return mapping and its derivative ``d sigma / d eps`` per row of ``eps``.
 
     Differentiating the closed form of :func:`return_mapping` with
@@ -125,17 +176,17 @@ def consistent_tangent(material: Material, eps: np.ndarray) -> tuple[np.ndarray,
         C_alg = C - 6 mu^2 / (3 mu + H) n n^T - 6 mu^2 dkappa / q (Dev - n n^T),
 
     and ``C`` in elastic ones. Returns ``(sigma, xi, C_alg)`` with ``C_alg``
-    shaped ``(n, k, k)``.
+    shaped ``(n, k, k)``. ``state``: as for :func:`return_mapping` (the trial
+    values are then those of the shifted strain).
     """
     dim = 2 if eps.shape[-1] == 4 else 3
-    sigma, xi, dkappa = return_mapping(material, eps)
+    sigma, xi, dkappa = return_mapping(material, eps, state)
     C = material.stiffness(dim)
     tangent = np.broadcast_to(C, (eps.shape[0],) + C.shape).copy()
     plastic = dkappa > 0.0
     if np.any(plastic):
         mu, H = material.mu, material.hardening
-        s = deviator(eps[plastic] @ C)
-        norm_s = np.linalg.norm(s, axis=-1)
+        _, s, norm_s, _ = _trial(material, eps[plastic], None if state is None else state.rows(plastic))
         n = s / norm_s[:, None]
         nn = n[:, :, None] * n[:, None, :]
         q = SQRT_3_2 * norm_s

@@ -53,10 +53,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from elastoplast.certificate.solution import Solution
+from elastoplast.certificate.solution import Solution, check_solution
 from elastoplast.errors import InputError
 from elastoplast.fem.discretize import nondimensionalize
-from elastoplast.fem.material import Material, n_components, return_mapping
+from elastoplast.fem.material import Material, Prestate, n_components, return_mapping
 from elastoplast.linalg.direct import FACTORIZATIONS
 from elastoplast.options import MAX_ITER_CEILING, SolverOptions, option
 from elastoplast.solvers.contact import (
@@ -98,6 +98,8 @@ class FastOptions(SolverOptions):
                             choices=("stiffness", "identity"))
     penalty: float | None = option(None, float, "ALG2 only: the penalty r in units of E (none: automatic)",
                                    lo=PENALTY_RANGE[0], hi=PENALTY_RANGE[1], none=True)
+    initial: Solution | None = option(None, Solution, "warm start: a Solution of the same discretisation (u, U)",
+                                      none=True, persist=False)
 
 
 def alg2_penalty(material: Material, options: "FastOptions") -> float:
@@ -150,7 +152,8 @@ def prox_material(material: Material, r: float, splitting: str) -> Material:
 
 
 def prox_energy(material: Material, z: np.ndarray, r: float, splitting: str = "identity",
-                M_inv: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                M_inv: np.ndarray | None = None,
+                state: Prestate | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ALG2's step (2): ``q = argmin_q W(q) + r/2 |q - z|_M^2`` per row of ``z``.
 
     ``W(e) = min_p 1/2 (e - p) C (e - p) + sigma_y kappa + 1/2 H kappa^2`` is the
@@ -164,9 +167,14 @@ def prox_energy(material: Material, z: np.ndarray, r: float, splitting: str = "i
 
     Returns ``(q, sigma', xi')``: the minimiser, and the stress and hardening
     stress of the real material at q.
+
+    On a step from a ``state``, ``W_n(q)`` is Hencky's W at ``q + A sigma_n`` with
+    the yield stress ``sigma_y + xi_n`` (up to a constant), so the same formulas
+    hold with ``R_r`` shifted by the state's elastic strain (the real material's
+    ``A sigma_n``, kept by the state).
     """
     mat_r = prox_material(material, r, splitting)
-    sigma, xi, _ = return_mapping(mat_r, z)
+    sigma, xi, _ = return_mapping(mat_r, z, state)
     if M_inv is None:
         dim = 2 if z.shape[-1] == 4 else 3
         M_inv = np.linalg.inv(splitting_metric(material, dim, splitting))
@@ -240,7 +248,7 @@ def _solve_uzawa_fast(disc, options: FastOptions) -> Solution:
     rho = RHO_SHARE / nd.material.max_stiffness_eigenvalue()
     proj = metric_projection(nd, units.length, np.eye(nd.k), options.factorization, None, options.inner_rtol)
     zero = np.zeros(nd.n_free)
-    x, X, lam = proj(zero, 0.0, zero, 0.0, nd.force, nd.N, nd.psi)
+    x, X, lam = proj(*initial_point(disc, units, options, zero), zero, 0.0, nd.force, nd.N, nd.psi)
     x_old, X_old, t = x.copy(), X, 1.0
     timings["setup"] = time.perf_counter() - t_start
 
@@ -248,7 +256,7 @@ def _solve_uzawa_fast(disc, options: FastOptions) -> Solution:
     while True:
         if n % options.check_every == 0 or n >= options.max_iter:
             t0 = time.perf_counter()
-            sigma, xi = project_stresses(nd.material, nd.strain(x))
+            sigma, xi = project_stresses(nd.material, nd.strain(x), nd.state)
             verdict = monitor.check(n, sigma, xi, x, X, restarts=restarts)
             timings["certificate"] += time.perf_counter() - t0
             if verdict is not None:
@@ -257,7 +265,7 @@ def _solve_uzawa_fast(disc, options: FastOptions) -> Solution:
         t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
         beta = (t - 1.0) / t_new
         y, Y = x + beta * (x - x_old), X + beta * (X - X_old)
-        s_y, _ = project_stresses(nd.material, nd.strain(y))  # step (i) at y
+        s_y, _ = project_stresses(nd.material, nd.strain(y), nd.state)  # step (i) at y
         x_new, X_new, lam = proj(y, Y, nd.internal_force(s_y), rho, nd.force, nd.N, nd.psi, lam)  # step (ii) from y
         if options.restart and metric_inner(nd, y - x_new, x_new - x, Y - X_new, X_new - X, proj.weight) > 0.0:
             t_new = 1.0
@@ -288,16 +296,16 @@ def _solve_alg2(disc, options: FastOptions) -> Solution:
     r = alg2_penalty(nd.material, options)
     step = alg2_setup(nd, r, options.splitting, options.factorization, units.length, options.inner_rtol)
     zero = np.zeros(nd.n_free)
-    v, V, lam = step.project(zero, 0.0, zero, 0.0, nd.force, nd.N, nd.psi)
+    v, V, lam = step.project(*initial_point(disc, units, options, zero), zero, 0.0, nd.force, nd.N, nd.psi)
     q = nd.strain(v)
-    sigma, xi = project_stresses(nd.material, q)
+    sigma, xi = project_stresses(nd.material, q, nd.state)
     timings["setup"] = time.perf_counter() - t_start
 
     n = 0
     while True:
         if n % options.check_every == 0 or n >= options.max_iter:
             t0 = time.perf_counter()
-            s_c, x_c = project_stresses(nd.material, nd.strain(v))
+            s_c, x_c = project_stresses(nd.material, nd.strain(v), nd.state)
             verdict = monitor.check(n, s_c, x_c, v, V)
             timings["certificate"] += time.perf_counter() - t0
             if verdict is not None:
@@ -306,7 +314,7 @@ def _solve_alg2(disc, options: FastOptions) -> Solution:
         v, V, lam = alg2_displacements(nd, step, q, sigma, V, lam, v)  # step (1)
         eps = nd.strain(v)
         q, sigma, xi = prox_energy(nd.material, eps + (sigma @ step.M_inv) / r, r, options.splitting,
-                                   step.M_inv)  # steps (2) and (3)
+                                   step.M_inv, nd.state)  # steps (2) and (3)
         timings["iterations"] += time.perf_counter() - t0
         n += 1
     return monitor.solution(verdict, s_c, x_c, v, V, iterations=n, timings=timings,
@@ -314,9 +322,19 @@ def _solve_alg2(disc, options: FastOptions) -> Solution:
                                  f"{projection_note(step.project)}")
 
 
+def initial_point(disc, units, options: FastOptions, zero: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(u, U)`` in scaled units to start from: zero, or ``options.initial``'s (the
+    first projection onto K_h makes either feasible)."""
+    if options.initial is None:
+        return zero, 0.0
+    return disc.free_displacement(options.initial.u) / units.displacement, options.initial.U / units.displacement
+
+
 def solve_accelerated(disc, options: FastOptions = FastOptions()) -> Solution:
     """The ``"uzawa-fast"`` method: FISTA (default) or ALG2 as ``options.variant`` says."""
     options = check_inputs(disc, options, FastOptions)
+    if options.initial is not None:
+        check_solution(disc, options.initial, "initial", reads=("u",), start=True)
     with iterative_context(disc, options.factorization):
         return VARIANTS[options.variant](disc, options)
 

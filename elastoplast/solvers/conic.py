@@ -146,6 +146,11 @@ def stress_form_data(disc: Discretization, with_yield: bool = True):
     P = sp.block_diag(blocks, format="csc")
     q = np.zeros(n_cols)
     q[lam_col:] = disc.psi
+    if disc.state is not None:  # (S_n): the quadratic centred at the state, 1/2 [t - s_n, t - s_n]
+        w = element_weights(disc)
+        q[:n * k] = -(w[:, None] * disc.state.strain).ravel()
+        if has_xi:
+            q[xi_col:lam_col] = -w * disc.state.xi / m.hardening
 
     A_eq, b_eq = equilibrium_rows(disc, tau_col, lam_col, n_cols)
     A_nn, b_nn = contact_sign_rows(nc, lam_col, n_cols)
@@ -204,6 +209,9 @@ def elastic_first(solve_scaled):
     """Run ``solve_scaled(nd, with_yield) -> (status, msg, iters, sigma, xi, u, U, lam)``,
     first without yield cones when the yield stress is large.
 
+    On a step from a state the yield stress of each element is ``sigma_y + xi_n``
+    and an elastic answer keeps ``xi = xi_n``.
+
     A yield stress far above the stresses (an elastic limit) puts the cones'
     constants orders of magnitude above the iterates, which stalls interior
     points. The elastic contact solution satisfies every KKT condition of (2.1)
@@ -214,7 +222,10 @@ def elastic_first(solve_scaled):
     def run(nd: Discretization):
         if nd.material.yield_stress >= ELASTIC_FIRST:  # nd is in mean-pressure units
             out = solve_scaled(nd, False)
-            if out[0] is Status.CONVERGED and von_mises(out[3]).max() <= nd.material.yield_stress:
+            limit = nd.material.yield_stress + (0.0 if nd.state is None else nd.state.xi)
+            if out[0] is Status.CONVERGED and np.all(von_mises(out[3]) <= limit):
+                if nd.state is not None:
+                    out = out[:4] + (nd.state.xi.copy(),) + out[5:]
                 return out
             iters = out[2]
             out = solve_scaled(nd, True)
@@ -269,7 +280,7 @@ def _finish(disc: Discretization, method: str, scaled, timings: dict[str, float]
     if options.polish:
         t1 = time.perf_counter()
         pol = newton_polish(nd, u_free, U, lam)
-        sig_p, xi_p, _ = return_mapping(nd.material, nd.strain(pol.u_free))
+        sig_p, xi_p, _ = return_mapping(nd.material, nd.strain(pol.u_free), nd.state)
         timings["polish"] = time.perf_counter() - t1
         candidates.append((sig_p, xi_p, pol.u_free, pol.U, None,
                            f"{msg}; polished by {pol.steps} Newton step(s)" + ("" if pol.converged else " (not converged)")))
@@ -319,9 +330,12 @@ def stress_program(disc: Discretization, with_yield: bool = True):
     tau = cp.Variable((n, k), name="tau_hat")
     lam = cp.Variable(nc, name="lam")
     xi = cp.Variable(n, name="xi_hat") if with_yield and m.hardening > 0 else None
-    energy = 0.5 * cp.sum_squares(tau @ _factor(m.compliance(disc.dim)))
+    # (S_n) on a step from a state: the same model, the quadratic centred at the state
+    tau0 = 0.0 if disc.state is None else w[:, None] * disc.state.sigma
+    xi0 = 0.0 if disc.state is None else w * disc.state.xi
+    energy = 0.5 * cp.sum_squares((tau - tau0) @ _factor(m.compliance(disc.dim)))
     if xi is not None:
-        energy += 0.5 * cp.sum_squares(xi) / m.hardening
+        energy += 0.5 * cp.sum_squares(xi - xi0) / m.hardening
     weighted = cp.reshape(cp.multiply(w[:, None], tau), (n * k,), order="C")
     cons = {
         "equilibrium": disc.B.T @ weighted - disc.N.T @ lam == 0,
@@ -348,9 +362,12 @@ def displacement_program(disc: Discretization):
     p_hat = cp.Variable((n, k - 1), name="p_hat")
     kappa = cp.Variable(n, name="kappa_hat")
     eps = cp.reshape(disc.B @ v, (n, k), order="C")
-    elastic = cp.multiply(w[:, None], eps) - p_hat @ deviatoric_basis(k).T
+    # (D_n) on a step from a state: W_n(e) is W at e + A sigma_n with sigma_y + xi_n, up to a constant
+    eps0 = 0.0 if disc.state is None else w[:, None] * disc.state.strain
+    limit = m.yield_stress if disc.state is None else m.yield_stress + disc.state.xi
+    elastic = cp.multiply(w[:, None], eps) + eps0 - p_hat @ deviatoric_basis(k).T
     energy = 0.5 * cp.sum_squares(elastic @ _factor(m.stiffness(disc.dim)))
-    dissipation = m.yield_stress * (w @ kappa)
+    dissipation = (w * limit) @ kappa
     if m.hardening > 0:
         dissipation += 0.5 * m.hardening * cp.sum_squares(kappa)
     cons = {
@@ -431,9 +448,12 @@ def _stress_answer(nd: Discretization, var, cons):
 def _displacement_answer(nd: Discretization, var, cons):
     m, k, w = nd.material, nd.k, element_weights(nd)
     p = var["p"].value @ deviatoric_basis(k).T / w[:, None]
-    sigma = (var["eps"].value - p) @ m.stiffness(nd.dim)
-    return (sigma, m.hardening * var["kappa"].value / w, var["v"].value, float(var["V"].value),
-            cons["contact"].dual_value)
+    xi = m.hardening * var["kappa"].value / w
+    eps = var["eps"].value
+    if nd.state is not None:  # the increments of a step: add the state
+        eps, xi = eps + nd.state.strain, xi + nd.state.xi
+    sigma = (eps - p) @ m.stiffness(nd.dim)
+    return sigma, xi, var["v"].value, float(var["V"].value), cons["contact"].dual_value
 
 
 def solve_conic_cvxpy(disc: Discretization, options: ConicOptions = ConicOptions()) -> Solution:

@@ -265,4 +265,5 @@ class State:
         if self.tangent is not None:
             return self
         eps = disc.strain(self.u)[self.plastic]
-        return replace(self, tangent=consistent_tangent(disc.material, eps)[2])
+        state = None if disc.state is None else disc.state.rows(self.plastic)
+        return replace(self, tangent=consistent_tangent(disc.material, eps, state)[2])

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from elastoplast.certificate.kkt import energy_density
+from elastoplast.certificate.kkt import work_density
 from elastoplast.certificate.solution import Solution, Status, check_solution
 from elastoplast.fem.discretize import Discretization, nondimensionalize
 from elastoplast.fem.material import return_mapping
@@ -148,20 +148,19 @@ def evaluate(disc: Discretization, cdofs: np.ndarray, y: np.ndarray, tangent: bo
     rows give ``lam_i = r_{i,d}``) and ``sum_i lam_i - F`` for U.
     """
     u, U = to_displacements(y, cdofs)
-    sigma, xi, dkappa = return_mapping(disc.material, disc.strain(u))
+    sigma, xi, dkappa = return_mapping(disc.material, disc.strain(u), disc.state)
     r = disc.internal_force(sigma)
     grad = np.append(r, r[cdofs].sum() - disc.force)
-    st = State(y, u, U, sigma, xi, np.flatnonzero(dkappa > 0.0), None, grad, energy(disc, sigma, xi, dkappa, U))
+    st = State(y, u, U, sigma, xi, np.flatnonzero(dkappa > 0.0), None, grad, energy(disc, sigma, dkappa, U))
     return st.with_tangent(disc) if tangent else st
 
 
-def energy(disc: Discretization, sigma: np.ndarray, xi: np.ndarray, kappa: np.ndarray, U: float) -> float:
+def energy(disc: Discretization, sigma: np.ndarray, kappa: np.ndarray, U: float) -> float:
     """f = (D)'s objective, :func:`~elastoplast.certificate.solution.value_displacement_form`,
     from the return mapping already done at the point (one mapping per line-search
-    trial, not two): ``sum_T |T| (1/2 sigma A sigma + 1/2 xi^2 / H + sigma_y kappa) - F U``
-    (``xi = H kappa``, so ``xi^2 / H = H kappa^2``)."""
-    density = 0.5 * energy_density(disc, sigma, xi) + disc.material.yield_stress * kappa
-    return float(disc.volumes @ density) - disc.force * U
+    trial, not two): ``sum_T |T| W - F U`` with the density of
+    :func:`~elastoplast.certificate.kkt.work_density` (a step's on a loading path)."""
+    return float(disc.volumes @ work_density(disc, sigma, kappa)) - disc.force * U
 
 
 def project(y: np.ndarray, cdofs: np.ndarray, lower: np.ndarray) -> np.ndarray:

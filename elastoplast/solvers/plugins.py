@@ -207,7 +207,7 @@ def judge(disc: Discretization, out: Any, name: str, tol: float, elapsed: float)
             if len(out) == 4:
                 sigma, xi = out[2], out[3]
             else:
-                sigma, xi, _ = return_mapping(disc.material, disc.strain(disc.free_displacement(u)))
+                sigma, xi, _ = return_mapping(disc.material, disc.strain(disc.free_displacement(u)), disc.state)
         else:
             raise PluginError(f"method {name!r} returned {short_repr(out)}: expected a Solution, (u, U) or "
                               "(u, U, sigma, xi)")

@@ -59,7 +59,7 @@ def newton_polish(
     for step in range(1, max_steps + 1):
         if not np.any(active):
             break
-        sigma, _, C_alg = consistent_tangent(m, disc.strain(u))
+        sigma, _, C_alg = consistent_tangent(m, disc.strain(u), disc.state)
         r = disc.internal_force(sigma)
         K = disc.weighted_gram(C_alg)
         NA = disc.N[active]

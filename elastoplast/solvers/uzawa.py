@@ -33,7 +33,7 @@ import scipy.sparse as sp
 from elastoplast.certificate.solution import Solution, check_solution
 from elastoplast.errors import InputError
 from elastoplast.fem.discretize import Discretization, Units, nondimensionalize
-from elastoplast.fem.material import Material, return_mapping
+from elastoplast.fem.material import Material, Prestate, return_mapping
 from elastoplast.linalg.direct import FACTORIZATIONS
 from elastoplast.options import MAX_ITER_CEILING, SolverOptions, option
 from elastoplast.errors import short_repr
@@ -148,13 +148,14 @@ class UzawaOptions(SolverOptions):
 # ----------------------------------------------------------------------------
 
 
-def project_stresses(material: Material, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def project_stresses(material: Material, eps: np.ndarray, state: Prestate | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Step (i): ``sigma_hat^{n+1} = R(eps(u^n))`` element by element.
 
     R is the closed-form projection of ``(C eps, 0)`` onto the admissible set D
     in the energy metric (docs/certificate.md); ``eps`` has shape ``(n_el, k)``.
+    On a step of a loading path, R_n from the step's ``state``.
     """
-    sigma, xi, _ = return_mapping(material, eps)
+    sigma, xi, _ = return_mapping(material, eps, state)
     return sigma, xi
 
 
@@ -232,7 +233,7 @@ def _solve_uzawa(disc: Discretization, options: UzawaOptions) -> Solution:
     interval, n = options.check_every or 1, 0
     while True:
         t0 = time.perf_counter()
-        sigma, xi = project_stresses(nd.material, nd.strain(u))  # step (i)
+        sigma, xi = project_stresses(nd.material, nd.strain(u), nd.state)  # step (i)
         r = nd.internal_force(sigma)
         t1 = time.perf_counter()
         timings["stresses"] += t1 - t0

@@ -282,3 +282,39 @@ def test_paths_agree_with_an_independent_incremental_model():
         res = ep.solve_path(disc, path, method, tol=1e-9)
         assert res.converged
         assert np.allclose(res.U, reference, rtol=1e-5, atol=0), (method, res.U, reference)
+
+
+def test_hidden_sub_steps_are_refused():
+    with pytest.raises(InputError) as err:
+        ep.solve_path(block(), [1.0, 2.0], "newton", load_steps=3)
+    assert err.value.field == "load_steps" and "intermediate forces" in err.value.message
+
+
+@pytest.mark.parametrize("method", ["clarabel-export", "osqp-elastic"])
+def test_methods_that_serve_hencky_only_refuse_a_step(method):
+    """The exported program and the elastic QP hold no state: a step is refused
+    naming the discretisation, never answered as Hencky's problem."""
+    disc = block()
+    q = 1.2 * SY
+    with pytest.raises(InputError) as err:
+        ep.solve_path(disc, [q * AREA], method)
+    assert err.value.field == "disc" and "loading path" in err.value.message
+
+
+def test_small_strains_are_judged_on_the_total_displacement():
+    """Each step of a slow monotone overload adds little strain, but the total
+    leaves the small-strain model: a step there is not converged (the limit is
+    fem.locking.SMALL_STRAIN_LIMIT; the block's axial strain is q/E + kappa)."""
+    from elastoplast.fem.locking import SMALL_STRAIN_LIMIT
+
+    disc = block()
+    q_end = SY + H * 2 * SMALL_STRAIN_LIMIT  # kappa = 2 x the limit at the last step
+    qs = np.linspace(SY, q_end, 12)[1:]
+    res = ep.solve_path(disc, qs * AREA, "newton", tol=1e-8)
+    assert not res.converged
+    last = res.steps[-1]
+    assert "small-strain" in last.solution.message
+    strain = (qs[last.index - 1] / E + (qs[last.index - 1] - SY) / H)
+    assert strain > SMALL_STRAIN_LIMIT
+    # every step before it stayed within the model
+    assert all(s.converged for s in res.steps[:-1])

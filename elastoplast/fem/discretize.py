@@ -173,6 +173,15 @@ class Discretization:
         return out
 
 
+def check_hencky(disc: Discretization, what: str) -> None:
+    """Refuse a step of a loading path (``disc.state`` set) where ``what`` serves
+    Hencky's problem only: an InputError naming ``disc``, never an answer to
+    another problem."""
+    if disc.state is not None:
+        raise InputError("disc", f"is a step of a loading path (it carries a state): {what} serves Hencky's "
+                                 "problem only; give the problem's discretisation (ep.discretize)")
+
+
 def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, chunk: int = 1 << 17) -> sp.csr_matrix:
     """``B`` on the free dofs (rows ``element * k + component``, Mandel), built
     row by row as CSR.

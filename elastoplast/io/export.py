@@ -77,7 +77,7 @@ import scipy.sparse as sp
 
 from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.errors import InputError, expect
-from elastoplast.fem.discretize import PSI_CAP, Discretization, nondimensionalize
+from elastoplast.fem.discretize import PSI_CAP, Discretization, check_hencky, nondimensionalize
 from elastoplast.fem.material import SQRT_3_2
 from elastoplast.fem.locking import BEARING_FACTOR, SMALL_STRAIN_LIMIT
 from elastoplast.io.cbf import CBFProgram, cbf_text, escape_comment
@@ -190,6 +190,7 @@ def stress_form(disc: Discretization, energy: str = "cone") -> Built:
     (``n``, absent when H = 0), ``lam~`` (``n_contact``, domain ``L+``) and, with
     ``energy="cone"``, the epigraph ``t``; rows: equilibrium and force balance (``L=``),
     one ``Q`` of size k per element, the energy ``QR``."""
+    check_hencky(disc, "the export of (S)")
     nd, s = _scales(disc)
     n, k, nc, nf = nd.n_elements, nd.k, nd.n_contact, nd.n_free
     m = nd.material
@@ -240,6 +241,7 @@ def displacement_form(disc: Discretization, energy: str = "cone") -> Built:
     trace-free basis), ``kappa~`` (``n``) and, with ``energy="cone"``, ``t``; rows: the
     contact inequalities (``L+``), one flow cone ``Q`` of size k per element, the
     elastic and hardening energy ``QR``."""
+    check_hencky(disc, "the export of (D)")
     nd, s = _scales(disc)
     n, k, nc, nf = nd.n_elements, nd.k, nd.n_contact, nd.n_free
     m = nd.material

@@ -38,7 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from elastoplast.certificate.solution import Solution, Status, make_solution
-from elastoplast.fem.discretize import Discretization, nondimensionalize
+from elastoplast.fem.discretize import Discretization, check_hencky, nondimensionalize
 from elastoplast.fem.material import Material, von_mises
 from elastoplast.io.export import answer_from_solution, clarabel_form, stress_form
 from elastoplast.options import MAX_ITER_CEILING, SolverOptions, option
@@ -391,6 +391,7 @@ def run_osqp_elastic(disc: Discretization, options: OSQPElasticOptions = OSQPEla
     for every method (an unfinished ADMM run is then ``max_iterations`` or
     ``time_limit``)."""
     options = check_inputs(disc, options, OSQPElasticOptions)
+    check_hencky(disc, "osqp-elastic")
     t0 = time.perf_counter()
     nd, units = nondimensionalize(disc)
     P, q, A, b, _, lay = stress_form_data(nd, with_yield=False)

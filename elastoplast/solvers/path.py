@@ -21,7 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from elastoplast.certificate.solution import Solution, Status
+from elastoplast.certificate.solution import Solution, Status, small_strain_note
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import Prestate, return_mapping
@@ -207,6 +207,9 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
         raise InputError("options", "give an options object or keyword options, not both")
     name = get_method(method).name
     opts = method_options(method, options if options is not None else values)
+    if getattr(opts, "load_steps", 1) != 1:
+        raise InputError("load_steps", f"is {opts.load_steps}: a path takes no hidden sub-steps (they would change "
+                                       "the answer of Prandtl-Reuss' law); put the intermediate forces in the path")
     t0 = time.perf_counter()
     m, n_el = disc.material, disc.n_elements
     yield_strain = m.yield_stress / m.E
@@ -219,6 +222,9 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
         start = _guess(step_disc, prev, before, force) if warm_start else None
         sol = _run(step_disc, method, opts, start)
         du = step_disc.free_displacement(sol.u)
+        beyond = small_strain_note(disc, u_free + du)  # the total strain, not the increment's
+        if sol.converged and beyond:
+            sol = replace(sol, status=Status.FAILED, message=f"{sol.message}; {beyond}")
         _, _, dkappa = return_mapping(m, step_disc.strain(du), state)
         dp = step_disc.strain(du) - (sol.sigma - state.sigma) @ m.compliance(disc.dim)
         work = float(disc.volumes @ np.einsum("ei,ei->e", sol.sigma, dp))

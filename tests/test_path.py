@@ -318,3 +318,22 @@ def test_small_strains_are_judged_on_the_total_displacement():
     assert strain > SMALL_STRAIN_LIMIT
     # every step before it stayed within the model
     assert all(s.converged for s in res.steps[:-1])
+
+
+def test_a_path_problem_is_not_solved_as_hencky_s():
+    """ep.solve on a problem file's path would answer another problem (Hencky's at the
+    largest force): refused, pointing to solve_path."""
+    problem = ep.problem_from_dict({
+        "mesh": {"generator": "box", "size": [2.0, 2.0, HEIGHT], "divisions": [2, 2, 2], "contact_radius": 10.0},
+        "material": {"E": E, "nu": NU, "yield_stress": SY, "hardening": H},
+        "boundary": {"clamped": [], "contact": ["bottom"], "fix_component": {"x": ["xmin"], "y": ["ymin"], "z": ["top"]}},
+        "obstacle": {"shape": "flat"},
+        "load": {"path": [1.2 * SY * AREA, 0.5 * SY * AREA]},
+    })
+    disc = ep.discretize(problem)
+    with pytest.raises(InputError, match="solve_path") as err:
+        ep.solve(disc, "newton")
+    assert err.value.field == "disc"
+    res = ep.solve_path(disc, problem.path, "newton", tol=1e-8)
+    expected = block_closed_form([1.2 * SY, 0.5 * SY])
+    assert np.allclose(res.U, [u for u, _ in expected], rtol=1e-6)

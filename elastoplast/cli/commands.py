@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping
 from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK
 from elastoplast.errors import FIELD_WIDTH, InputError, elide
+from elastoplast.cli.paths import has_path, refuse_path, solve_path_command
 from elastoplast.cli.printing import discretize_file, figure, problem_line
 
 
@@ -136,6 +137,8 @@ def _solve(args: argparse.Namespace) -> int:
     from elastoplast.solvers.registry import solve
 
     path, data, method, opts = _setup(args)
+    if has_path(data):  # a loading path: every step, its files (cli/paths.py)
+        return solve_path_command(args, path, data, method, opts)
     disc = _discretize(path, data, args.quiet, f"method {method}")
     sol = solve(disc, method, opts)
     data = write_results(args.out, disc, sol, field="--out")
@@ -162,6 +165,7 @@ def _bounds(args: argparse.Namespace) -> int:
     from elastoplast.solvers.registry import check_solvable, solve
 
     path, data, method, opts = _setup(args)
+    refuse_path(data, "bounds")
     disc = _discretize(path, data, args.quiet, f"P1 solution by {method}, then the bounds")
     # before the solve; the U bracket runs two more programs in this process
     check_lower_bound_size(disc, LowerBoundOptions(), factor=1.0 if args.no_bracket else SEQUENCE_MEMORY_FACTOR)
@@ -220,6 +224,7 @@ def _adapt(args: argparse.Namespace) -> int:
     from elastoplast.solvers.registry import get_method
 
     path, data, _, _ = _setup(args, solver=False)
+    refuse_path(data, "adapt")
     table = data.get("solver", {})
     if not isinstance(table, Mapping):
         raise InputError("solver", f"must be a table, got {type(table).__name__}")
@@ -352,7 +357,9 @@ def _range_text(spec) -> str:
 
 def _check(args: argparse.Namespace) -> int:
     from elastoplast.cli.check import run_check
+    from elastoplast.problem.definition import read_toml
 
+    refuse_path(read_toml(args.problem), "check")
     return run_check(args.problem, args.answer, tol=args.tol, bounds=args.bounds, out=args.out, quiet=args.quiet)
 
 
@@ -363,6 +370,7 @@ def _export(args: argparse.Namespace) -> int:
 
     path = Path(args.problem) if args.problem else default_problem_path()
     data = read_toml(path)
+    refuse_path(data, "export")
     mesh = data.get("mesh") if isinstance(data, dict) else None
     mesh_file = mesh.get("file") if isinstance(mesh, dict) else None
     protect = [path] + ([path.parent / mesh_file] if isinstance(mesh_file, str) else [])

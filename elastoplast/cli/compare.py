@@ -47,16 +47,39 @@ def compare_problem(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray], r
     from elastoplast.fem.discretize import discretize
     from elastoplast.solvers.registry import solve
 
+    steps = None
     try:
         disc = discretize(rebuild_problem(spec, arrays))
-        sol = solve(disc, spec["method"], **spec["options"])
+        if spec.get("path") is not None:  # a loading path: every step, compared step by step in compare()
+            from elastoplast.io.paths import path_solution
+            from elastoplast.solvers.path import solve_path
+
+            result = solve_path(disc, spec["path"], spec["method"], **spec["options"])
+            sol = path_solution(result)
+            steps = [{"step": st.index, "force": st.force, "U": st.U, "kkt_worst": st.solution.kkt.worst,
+                      "status": st.status.value} for st in result.steps]
+        else:
+            sol = solve(disc, spec["method"], **spec["options"])
     except Exception as exc:
         return {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
     return {
-        "status": sol.status.value, "message": sol.message, "U": sol.U, "kkt_worst": sol.kkt.worst,
+        "status": sol.status.value, "message": sol.message, "U": sol.U,
+        "kkt_worst": sol.kkt.worst if steps is None else max(st["kkt_worst"] for st in steps),
         "iterations": sol.iterations, "time_s": sol.time_s,
         "errors": {case_id: solution_errors(disc, sol, ref) for case_id, ref in refs},
+        **({} if steps is None else {"steps": steps}),
     }
+
+
+def step_errors(steps: Sequence[Mapping[str, Any]], ref_path: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """A path's steps against the reference's (``summary.json``'s ``"path"``), step by
+    step: both U, ``U_rel = |U - U_ref| / |U_ref|``, both KKT worst residuals and
+    statuses; only the steps both ran."""
+    tiny = np.finfo(float).tiny
+    return [{"step": st["step"], "force": st["force"], "U_ref": ref["U"], "U": st["U"],
+             "U_rel": abs(st["U"] - ref["U"]) / max(abs(ref["U"]), tiny), "kkt_worst_ref": ref["kkt_worst"],
+             "kkt_worst": st["kkt_worst"], "status_ref": ref["status"], "status": st["status"]}
+            for st, ref in zip(steps, ref_path)]
 
 
 @dataclass(frozen=True)
@@ -77,6 +100,7 @@ class Comparison:
                      _g(r["U_ref"]), _g(r.get("U")), _e(r.get("U_rel")), _e(r.get("sigma_rel")),
                      _e(r.get("kkt_worst")), _g(r["time_ref"]), _g(r.get("time_s")), _g(r.get("time_ratio"))]
             lines.append("| " + " | ".join(cells) + " |")
+        lines += _step_table(self.rows)
         s = self.summary
         lines += ["", f"{s['n_cases']} reference case(s), {s['n_problems']} problem(s); {_method_runs(s)}."]
         if s["n_compared"]:
@@ -85,6 +109,21 @@ class Comparison:
                       f"- time ratio ({self.method} / reference): median {_g(s['time_ratio_median'])}, "
                       f"geometric mean {_g(s['time_ratio_geomean'])}"]
         return "\n".join(lines) + "\n"
+
+
+def _step_table(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The loading paths step by step (for a path, the table's U error is the largest over its steps)."""
+    paths = [r for r in rows if r.get("steps")]
+    if not paths:
+        return []
+    head = ["case", "step", "F", "U ref", "U", "U rel. err.", "KKT ref", "KKT", "status"]
+    lines = ["", "Loading paths, step by step (a path's U rel. err. above is the largest of its steps):", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in paths:
+        lines += [f"| {r['case'][:12]} | {st['step']} | {_g(st['force'])} | {_g(st['U_ref'])} | {_g(st['U'])} | "
+                  f"{_e(st['U_rel'])} | {_e(st['kkt_worst_ref'])} | {_e(st['kkt_worst'])} | {st['status']} |"
+                  for st in r["steps"]]
+    return lines
 
 
 def _method_runs(s: Mapping[str, Any]) -> str:
@@ -170,6 +209,9 @@ def compare(store_dir: str | Path, method: str, *, options: Mapping[str, Any] | 
         else:
             entry.update(status=res["status"], U=res["U"], kkt_worst=res["kkt_worst"], time_s=res["time_s"],
                          iterations=res["iterations"], message=res["message"], **res["errors"][row["id"]])
+            if "steps" in res:  # a path: U_rel is the largest over the steps both ran
+                entry["steps"] = step_errors(res["steps"], store.load_path(row["id"]) or [])
+                entry["U_rel"] = max([entry["U_rel"], *(st["U_rel"] for st in entry["steps"])])
         rows_out.append(entry)
     comparison = Comparison(method=method, rows=tuple(rows_out), summary=_summarise(rows_out, len(by_problem)))
     with staged_output(out_dir, "out") as tmp:

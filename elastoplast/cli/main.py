@@ -49,7 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="elastoplast", description="Reference solutions of an elasto-plastic contact problem.")
     parser.add_argument("-V", "--version", action="version", version=f"elastoplast {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("solve", help="solve one problem and write solution.vtu and summary.json")
+    p = sub.add_parser("solve", help="solve one problem and write solution.vtu and summary.json; a problem with a "
+                                     "loading path ([load] path): every step, solution_NNN.vtu, path.pvd, path.png")
     p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
     p.add_argument("--method", help=f"solver, one of {sorted(METHODS)} (default: the file's [solver] method, else conic)")
     p.add_argument("--out", default="results", help="output folder, new or holding an earlier output (default: results)")

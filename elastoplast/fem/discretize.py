@@ -454,7 +454,7 @@ def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
     units = reference_units(disc)
     S, L = units.stress, units.length
     material = Material(1.0, m.nu, m.yield_stress / S, m.hardening / m.E)
-    problem = replace(disc.problem, material=material, force=disc.force / units.force)
+    problem = replace(disc.problem, material=material, force=disc.force / units.force, path=None)
     return (
         replace(
             disc,

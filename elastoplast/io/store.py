@@ -109,7 +109,8 @@ STORE_FILES = frozenset({INDEX_NAME, "cases", ".lock"})
 class ResolvedInput:
     """Everything a case's result depends on, as JSON-able ``spec`` plus mesh ``arrays``.
 
-    ``spec`` holds ``version``, ``method``, ``options``, ``force`` and the
+    ``spec`` holds ``version``, ``method``, ``options``, ``force`` (for a loading
+    path also ``path``, its forces) and the
     ``material``, ``boundary`` and ``obstacle`` fields; ``arrays`` the mesh
     ``points``, ``cells`` and one ``group:<name>`` per facet group.
     """
@@ -150,6 +151,8 @@ def resolve(problem: Problem, method: str, options: Mapping[str, Any],
         "obstacle": {"shape": problem.obstacle.shape, "dim": problem.obstacle.dim, "radius": problem.obstacle.radius,
                      "center": list(problem.obstacle.center), "expression": problem.obstacle.expression},
     }
+    if problem.path is not None:  # a loading path (absent otherwise, so that Hencky cases keep their ids)
+        spec["path"] = [float(f) for f in problem.path]
     if adapt is not None:
         spec["adapt"] = {k: adapt[k] for k in sorted(adapt)}
     return ResolvedInput(spec=json.loads(json.dumps(spec)), arrays=arrays)
@@ -179,6 +182,7 @@ def rebuild_problem(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -
         obstacle=Obstacle(shape=o["shape"], dim=o["dim"], radius=o["radius"], center=tuple(o["center"]),
                           expression=o["expression"]),
         force=spec["force"],
+        path=None if spec.get("path") is None else tuple(spec["path"]),
     )
 
 
@@ -382,6 +386,10 @@ class Store:
         if recertify:
             from elastoplast.fem.discretize import discretize
 
+            if "path" in data:
+                raise InputError("case", f"case {case_id} is a loading path: its solution is the last step's, "
+                                         "certified by that step's problem, not by Hencky's (solve the path again)")
+
             disc = disc if disc is not None else discretize(self.load_problem(case_id))
             return make_solution(disc, method=data["method"], status=Status(data["status"]), sigma=arr["sigma"],
                                  xi=arr["xi"], u_free=disc.free_displacement(arr["u"]), U=float(arr["U"]),
@@ -398,6 +406,13 @@ class Store:
             iterations=data["iterations"], timings=data["timings"], message=data["message"],
             history=data.get("history", []),
         )
+
+    def load_path(self, case_id: str) -> list[dict[str, Any]] | None:
+        """The steps of a loading-path case (``summary.json``'s ``"path"``, one entry per
+        step in order); None for a case without a path."""
+        with self._readable(f"the summary of case {case_id}"):
+            data = json.loads((self.case_dir(case_id) / "summary.json").read_text())
+        return data.get("path")
 
     # -- writing ----------------------------------------------------------------
 

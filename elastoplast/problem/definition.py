@@ -1,7 +1,9 @@
 """Problem description: the Python API and the TOML format.
 
 A :class:`Problem` is fully resolved: a mesh, a material, boundary groups, an
-obstacle and a force. :func:`load_problem` reads the TOML format of the README;
+obstacle and a force, or a loading path (``[load] path = [F_1, F_2, ...]``: one
+backward-Euler step of Prandtl-Reuss' law per force, docs/evolution.md).
+:func:`load_problem` reads the TOML format of the README;
 :func:`problem_from_dict` takes the same structure as nested dicts. Every
 complaint about the input is an :class:`InputError` naming the key.
 """
@@ -149,13 +151,25 @@ class Obstacle:
 
 @dataclass(frozen=True)
 class Problem:
-    """A complete elasto-plastic contact problem (docs/math.md)."""
+    """A complete elasto-plastic contact problem (docs/math.md).
+
+    ``path`` is None for Hencky's problem under ``force``. A loading path holds its
+    forces in order (:func:`check_forces`), each one backward-Euler step of
+    Prandtl-Reuss' law from the unloaded state (docs/evolution.md); ``force`` is then
+    the path's largest force, the load every check on the problem's scale judges
+    (the mean contact pressure, locking, the solvers' working units).
+    """
 
     mesh: Mesh
     material: Material
     boundary: Boundary
     obstacle: Obstacle
     force: float
+    path: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.path is not None:
+            object.__setattr__(self, "path", check_forces(self.path, "load.path"))
 
     @property
     def dim(self) -> int:
@@ -169,7 +183,39 @@ class Problem:
         value = _number({"force": force}, "force", "load")
         if not value > 0:
             raise InputError("load.force", f"must be > 0, got {force!r}")
-        return replace(self, force=value)
+        return replace(self, force=value, path=None)
+
+    def with_path(self, forces: Sequence[float]) -> "Problem":
+        """The same problem under the loading path ``forces``, checked as a problem
+        file's ``load.path`` (:func:`check_forces`)."""
+        from dataclasses import replace
+
+        path = check_forces(forces, "load.path")
+        return replace(self, force=max(path), path=path)
+
+
+def check_forces(forces: Any, field: str = "load.path") -> tuple[float, ...]:
+    """The forces of a loading path as floats, or an :class:`InputError` naming
+    ``field``: a non-empty list of finite numbers > 0, in any order (loading,
+    unloading, reloading). A force of 0 is refused: the body may then lift off the
+    rigid body, and U is not determined (end an unloading at a small force)."""
+    if isinstance(forces, (str, bytes, Mapping)) or not isinstance(forces, Sequence) and not (
+            isinstance(forces, np.ndarray) and forces.ndim == 1):
+        raise InputError(field, f"must be a list of forces > 0, got {short_repr(forces)}")
+    if len(forces) == 0:
+        raise InputError(field, "is empty: give at least one force > 0")
+    out = []
+    for i, f in enumerate(forces):
+        if isinstance(f, (bool, np.bool_)) or not isinstance(f, (int, float, np.integer, np.floating)):
+            raise InputError(field, f"entry {i + 1} must be a number > 0, got {short_repr(f)}")
+        value = finite_float(f)  # None for nan, inf and integers beyond the float range
+        if value is None:
+            raise InputError(field, f"entry {i + 1} must be a finite number, got {short_repr(f)}")
+        if value <= 0.0:
+            raise InputError(field, f"entry {i + 1} must be a force > 0, got {value:g} (at F = 0 the body may lift "
+                                    "off and U is not determined; end an unloading at a small F)")
+        out.append(value)
+    return tuple(out)
 
 
 # ----------------------------------------------------------------------------
@@ -416,7 +462,16 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     if "generator" in data["mesh"]:
         check_generated_contact_zone(mesh, boundary)
     obstacle = make_obstacle(data["obstacle"], mesh.dim)
-    load = _only(data["load"], {"force"}, "load")
+    load = _only(data["load"], {"force", "path"}, "load")
+    if "force" in load and "path" in load:
+        raise InputError("load", "give exactly one of 'force' (Hencky's problem) or 'path' (a loading path of "
+                                 "Prandtl-Reuss steps), not both")
+    if "path" in load:
+        path = check_forces(load["path"], "load.path")
+        return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle, force=max(path),
+                       path=path)
+    if "force" not in load:
+        raise InputError("load.force", "is required (or load.path, a loading path of Prandtl-Reuss steps)")
     force = _number(load, "force", "load")
     if not force > 0:
         raise InputError("load.force", f"must be > 0, got {force!r}")

@@ -26,6 +26,7 @@ from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import Prestate, return_mapping
 from elastoplast.options import SolverOptions
+from elastoplast.problem.definition import check_forces
 from elastoplast.solvers.registry import check_solvable, get_method, method_options
 
 #: a step whose force is below the last one's by more than this share unloads
@@ -139,23 +140,9 @@ class PathResult:
 
 
 def check_path(forces: Any, field_name: str = "load.path") -> tuple[float, ...]:
-    """The forces of a path as floats, or an InputError naming ``field_name``: a
-    non-empty list of finite numbers > 0 (a zero force leaves U undetermined: the
-    body may lift off)."""
-    if isinstance(forces, (str, bytes)) or not hasattr(forces, "__len__") or isinstance(forces, dict):
-        raise InputError(field_name, f"must be a list of forces > 0, got {forces!r}")
-    if len(forces) == 0:
-        raise InputError(field_name, "is empty: give at least one force > 0")
-    out = []
-    for i, f in enumerate(forces):
-        if isinstance(f, (bool, np.bool_)) or not isinstance(f, (int, float, np.integer, np.floating)):
-            raise InputError(field_name, f"entry {i + 1} must be a number > 0, got {f!r}")
-        f = float(f)
-        if not np.isfinite(f) or f <= 0.0:
-            raise InputError(field_name, f"entry {i + 1} must be a finite force > 0, got {f:g} (at F = 0 the body "
-                                         "may lift off and U is not determined; end an unloading at a small F)")
-        out.append(f)
-    return tuple(out)
+    """The forces of a path as floats, or an InputError naming ``field_name``: the
+    rules of a problem file's ``load.path`` (:func:`~elastoplast.problem.definition.check_forces`)."""
+    return check_forces(forces, field_name)
 
 
 def _guess(disc: Discretization, prev: PathStep | None, before: PathStep | None, force: float) -> Solution | None:

@@ -193,6 +193,10 @@ def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOpt
     answer is built by :func:`~elastoplast.certificate.solution.make_solution`, which
     judges its strains."""
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    if disc.problem.path is not None:
+        raise InputError("disc", f"is a loading path of {len(disc.problem.path)} step(s) (load.path): solve it with "
+                                 "ep.solve_path(disc, disc.problem.path, method), or give the Hencky problem at one "
+                                 "force with disc.with_force(F)")
     if options is not None and values:
         raise InputError("options", "give an options object or keyword options, not both")
     m = get_method(method)

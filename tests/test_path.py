@@ -29,6 +29,7 @@ import pytest
 
 import elastoplast as ep
 from elastoplast.errors import InputError
+from elastoplast.bounds.bracket import certified_bounds
 from elastoplast.solvers.path import check_path
 
 E, NU, SY, H = 200e3, 0.3, 250.0, 20e3
@@ -337,3 +338,30 @@ def test_a_path_problem_is_not_solved_as_hencky_s():
     res = ep.solve_path(disc, problem.path, "newton", tol=1e-8)
     expected = block_closed_form([1.2 * SY, 0.5 * SY])
     assert np.allclose(res.U, [u for u, _ in expected], rtol=1e-6)
+
+
+@pytest.mark.parametrize("entry", ["upper", "lower", "certified", "limit"])
+def test_the_bounds_refuse_a_step_and_a_path(entry):
+    """The continuum bounds are Hencky's: a step of a path (which carries a state) and a
+    problem file's path are refused naming the discretisation, not bounded as Hencky's
+    problem at some force."""
+    disc = block()
+    stepped = disc.step(1.2 * SY * AREA, ep.Prestate.of(disc.material, np.zeros((disc.n_elements, disc.k)),
+                                                          np.zeros(disc.n_elements)), np.zeros(disc.n_free))
+    path_disc = ep.discretize(replace_path(disc.problem))
+    run = {
+        "upper": lambda d: ep.upper_bound(d, (np.zeros((d.mesh.n_nodes, d.dim)), 0.0)),
+        "lower": lambda d: ep.solve_lower_bound(d),
+        "certified": lambda d: certified_bounds(d),
+        "limit": lambda d: ep.static_limit_load(d),
+    }[entry]
+    for d, why in ((stepped, "step of a loading path"), (path_disc, "load.path")):
+        with pytest.raises(InputError, match=why) as err:
+            run(d)
+        assert err.value.field == "disc"
+
+
+def replace_path(problem):
+    from dataclasses import replace
+
+    return replace(problem, path=(problem.force, 0.5 * problem.force))

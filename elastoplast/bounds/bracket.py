@@ -21,7 +21,7 @@ from elastoplast.bounds.upper import (
     best_upper_bound,
 )
 from elastoplast.errors import InputError, expect
-from elastoplast.fem.discretize import Discretization
+from elastoplast.fem.discretize import Discretization, check_hencky
 from elastoplast.certificate.kkt import real_number
 from elastoplast.certificate.solution import check_solution
 
@@ -259,6 +259,7 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
     from elastoplast.solvers.registry import solve
 
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    check_hencky(disc, "the certified bounds")
     if solution is not None:
         check_solution(disc, solution, "solution", reads=("u",))
     lower_options = LowerBoundOptions.of(lower_options, "lower_options")

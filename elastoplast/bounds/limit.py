@@ -55,7 +55,7 @@ from elastoplast.bounds.lower import (
 )
 from elastoplast.certificate.solution import Status
 from elastoplast.errors import InputError, expect
-from elastoplast.fem.discretize import Discretization, free_strain_operator
+from elastoplast.fem.discretize import Discretization, check_hencky, free_strain_operator
 from elastoplast.fem.assembly import element_geometry
 from elastoplast.fem.material import identity_vector
 from elastoplast.mesh.base import Mesh
@@ -371,6 +371,7 @@ def evaluate_kinematic(disc: Discretization, space: VelocitySpace, v: np.ndarray
 def kinematic_limit_load(disc: Discretization, options: LimitOptions = LimitOptions()) -> KinematicBound:
     """The kinematic upper bound on the limit load (module docstring)."""
     _check_perfectly_plastic(disc)
+    check_hencky(disc, "the limit load")
     options = LimitOptions.of(options)
     t0 = time.perf_counter()
     space = velocity_space(disc, options.order)
@@ -447,6 +448,7 @@ def limit_load(disc: Discretization, options: LimitOptions = LimitOptions(),
     program (:func:`kinematic_limit_load`) on ``disc``'s mesh; ``disc.force`` is
     not used."""
     _check_perfectly_plastic(disc)
+    check_hencky(disc, "the limit load")
     options, lower_options = LimitOptions.of(options), LowerBoundOptions.of(lower_options, "lower_options")
     check_lower_bound_size(disc, lower_options, limit=True)  # before the kinematic program, which would run first
     upper = kinematic_limit_load(disc, options)

@@ -72,7 +72,7 @@ from elastoplast.bounds.static import (
 )
 from elastoplast.certificate.solution import Status
 from elastoplast.errors import InputError, expect
-from elastoplast.fem.discretize import Discretization, Units, nondimensionalize
+from elastoplast.fem.discretize import Discretization, Units, check_hencky, nondimensionalize
 from elastoplast.fem.assembly import element_geometry
 from elastoplast.fem.material import von_mises
 from elastoplast.mesh.topology import FacetTopology, facet_measure
@@ -415,6 +415,7 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
     that no field of the equilibrium element carries F.
     """
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    check_hencky(disc, "the lower bound")
     options = LowerBoundOptions.of(options)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
@@ -482,6 +483,7 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     answer is ``F_lower = s F``.
     """
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    check_hencky(disc, "the limit load")
     options = LowerBoundOptions.of(options)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from elastoplast.certificate.kkt import energy_norm_sq, gaps
-from elastoplast.fem.discretize import Discretization
+from elastoplast.fem.discretize import Discretization, check_hencky
 from elastoplast.fem.material import Material, return_mapping
 from elastoplast.certificate.kkt import real_number, shaped
 from elastoplast.errors import InputError, expect
@@ -285,6 +285,7 @@ def upper_bound(disc: Discretization, candidate, correction: str = "best") -> Up
     from elastoplast.options import check_array
 
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    check_hencky(disc, "the upper bound")
     if isinstance(candidate, Solution):
         check_solution(disc, candidate, "candidate", reads=("u",))
         real_number("candidate.U", candidate.U)

@@ -174,12 +174,16 @@ class Discretization:
 
 
 def check_hencky(disc: Discretization, what: str) -> None:
-    """Refuse a step of a loading path (``disc.state`` set) where ``what`` serves
-    Hencky's problem only: an InputError naming ``disc``, never an answer to
-    another problem."""
+    """Refuse a loading path where ``what`` serves Hencky's problem only: a step of a
+    path (``disc.state`` set), or a problem whose file gives a path (``load.path``).
+    An InputError naming ``disc``, never an answer to another problem."""
     if disc.state is not None:
         raise InputError("disc", f"is a step of a loading path (it carries a state): {what} serves Hencky's "
                                  "problem only; give the problem's discretisation (ep.discretize)")
+    if disc.problem.path is not None:
+        raise InputError("disc", f"is a loading path of {len(disc.problem.path)} step(s) (load.path): {what} serves "
+                                 "Hencky's problem only; solve the path with ep.solve_path(disc, disc.problem.path, "
+                                 "method), or give Hencky's problem at one force with disc.with_force(F)")
 
 
 def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, chunk: int = 1 << 17) -> sp.csr_matrix:

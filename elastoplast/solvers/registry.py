@@ -21,7 +21,7 @@ from typing import Any, Callable, Mapping
 
 from elastoplast.certificate.solution import Solution
 from elastoplast.errors import InputError, expect, short_repr
-from elastoplast.fem.discretize import Discretization
+from elastoplast.fem.discretize import Discretization, check_hencky
 from elastoplast.fem.locking import check_hardening_carries_load, check_perfect_plasticity
 from elastoplast.options import SolverOptions
 from elastoplast.solvers.accelerated import FastOptions, solve_accelerated
@@ -193,10 +193,8 @@ def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOpt
     answer is built by :func:`~elastoplast.certificate.solution.make_solution`, which
     judges its strains."""
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
-    if disc.problem.path is not None:
-        raise InputError("disc", f"is a loading path of {len(disc.problem.path)} step(s) (load.path): solve it with "
-                                 "ep.solve_path(disc, disc.problem.path, method), or give the Hencky problem at one "
-                                 "force with disc.with_force(F)")
+    if disc.problem.path is not None:  # a step (state set) is Hencky-shaped and solved here; a whole path is not
+        check_hencky(disc, "ep.solve")
     if options is not None and values:
         raise InputError("options", "give an options object or keyword options, not both")
     m = get_method(method)

@@ -24,6 +24,8 @@ Origins of the numbers asserted:
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -274,10 +276,21 @@ def independent_path(disc: ep.Discretization, forces) -> list[float]:
     return out
 
 
-def test_paths_agree_with_an_independent_incremental_model():
-    disc = cylinder(divisions=(16, 8), force=16000.0)
+def quarter_sphere() -> ep.Discretization:
+    """The shipped 3D quarter model (two symmetry planes), coarsened."""
+    data = ep.read_toml("problems/sphere_quarter_3d.toml")
+    data["mesh"]["divisions"] = [6, 6, 4]
+    return ep.discretize(ep.problem_from_dict(data, base_dir="problems"))
+
+
+@pytest.mark.parametrize("case", ["cylinder_2d", "quarter_sphere_3d"])
+def test_paths_agree_with_an_independent_incremental_model(case, monkeypatch):
+    monkeypatch.chdir(Path(__file__).resolve().parent.parent)
+    disc = cylinder(divisions=(16, 8), force=16000.0) if case == "cylinder_2d" else quarter_sphere()
     F = disc.force
-    path = [0.4 * F, F, 0.3 * F, 0.05 * F, 0.7 * F]
+    # load, unload to almost nothing, reload beyond the earlier maximum (within small strains)
+    top = 1.5 if case == "quarter_sphere_3d" else 1.1
+    path = [0.4 * F, F, top * F, 0.3 * F, 0.05 * F, 0.7 * F, 1.2 * top * F]
     reference = independent_path(disc, path)
     for method in ("conic", "newton"):
         res = ep.solve_path(disc, path, method, tol=1e-9)

@@ -1,0 +1,125 @@
+"""Side study: the local lower bound (equilibration, exact lift, sweeps) against the global program.
+
+    python benchmarks/bounds/local.py [--quick] [--out DIR] [--report]
+
+On the 2D cylinder (problems/cylinder_2d.toml, graded, plastic, H > 0) and the 3D quarter
+sphere (problems/sphere_quarter_3d.toml) and the default 3D problem (problems/sphere_block_3d.toml) at a few sizes, each in its own process (so that
+its peak memory, VmHWM, is its own): ``newton`` (the P1 solve alone), ``local-<sweeps>``
+(the P1 solve, the certified upper bound, then :func:`local_lower_bound` with that many
+sweeps; its timings split into the star set-up, the sweeps, the round-off repair and the
+rest) and ``global`` (:func:`solve_lower_bound`, the optimum of the equilibrium element on
+the same mesh). The gap ratio is (upper - local) / (upper - global), both lower bounds
+paired with the same upper bound. Writes ``local.json`` and ``local.md`` beside this file
+(``--quick``: ``benchmarks/bounds/quick/``).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from harness import peak_memory, run_child, run_record  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+PROBLEMS = ROOT / "problems"
+STUDY = "local"
+TITLE = "Local lower bound against the global equilibrium-element program"
+
+CASES = {"cylinder_2d": [(24, 12), (40, 20), (80, 40), (160, 80)], "sphere_quarter_3d": [(3, 3, 3)],
+         "sphere_block_3d": [(8, 8, 4)]}
+QUICK = {"cylinder_2d": [(24, 12)]}
+SWEEPS = {"cylinder_2d": (0, 6, 12), "sphere_quarter_3d": (0, 1), "sphere_block_3d": (0,)}
+
+
+def _disc(problem: str, divisions):
+    import elastoplast as ep
+
+    data = ep.read_toml(PROBLEMS / f"{problem}.toml")
+    data["mesh"]["divisions"] = list(divisions)
+    return ep.discretize(ep.problem_from_dict(copy.deepcopy(data), base_dir=PROBLEMS))
+
+
+def run_one(problem: str, divisions, what: str) -> dict:
+    import elastoplast as ep
+    from elastoplast.bounds.local import local_lower_bound
+    from elastoplast.bounds.lower import solve_lower_bound
+    from elastoplast.bounds.upper import best_upper_bound
+
+    disc = _disc(problem, divisions)
+    out = {"n_elements": int(disc.n_elements)}
+    t0 = time.perf_counter()
+    if what == "global":
+        lb = solve_lower_bound(disc)
+        out.update(time_s=time.perf_counter() - t0, lower=lb.lower, certified=lb.certified,
+                   certificate_worst=lb.certificate.worst)
+    else:
+        sol = ep.solve(disc, "newton")
+        out.update(newton_s=time.perf_counter() - t0, converged=sol.converged)
+        if what.startswith("local"):
+            up = best_upper_bound(disc, sol, method="newton")
+            t1 = time.perf_counter()
+            lb = local_lower_bound(disc, sol, int(what.split("-")[1]))
+            out.update(sweeps=int(what.split("-")[1]), message=lb.message, time_s=time.perf_counter() - t1, lower=lb.lower, upper=up.Pi, upper_certified=up.certified,
+                       certified=lb.certified, certificate_worst=lb.certificate.worst, timings=lb.timings)
+    out["peak_rss_mb"] = peak_memory() / 2**20
+    return out
+
+
+def report(results: dict) -> str:
+    lines = ["Each run in its own process; seconds (wall clock); `local MB` is the peak of the process that ran the",
+             "newton solve, the upper bound and the local bound (`newton MB` the solve alone).", "",
+             "`s/sweep` is the sweeps' time over their number, `stars s` the star set-up (topology and self-equilibrated",
+             "bases, once for all sweeps), `repair s` the round-off repair after the sweeps.", "",
+             "| problem | elements | sweeps | newton s | local s | s/sweep | stars s | repair s | global s | newton MB | "
+             "local MB | global MB | upper | local lower | global lower | gap ratio | local certified | worst residual |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in results["cases"]:
+        g, nw = r.get("global", {}), r.get("newton", {})
+        for key, lo in r.items():
+            if not key.startswith("local-"):
+                continue
+            if "lower" not in lo:
+                lines.append(f"| {r['problem']} | {r['divisions']} | {key} | error: {lo.get('error', '')} |")
+                continue
+            gl = g.get("lower", float("nan"))
+            ratio = (lo["upper"] - lo["lower"]) / (lo["upper"] - gl) if "lower" in g else float("nan")
+            lines.append(
+                f"| {r['problem']} | {lo['n_elements']} | {key.split('-')[1]} | {nw.get('newton_s', float('nan')):.2f} | "
+                f"{lo['time_s']:.2f} | {_per_sweep(lo)} | {lo['timings'].get('stars', 0.0):.2f} | "
+                f"{lo['timings'].get('repair', 0.0):.2f} | {g.get('time_s', float('nan')):.2f} | {nw.get('peak_rss_mb', float('nan')):.0f} | "
+                f"{lo['peak_rss_mb']:.0f} | {g.get('peak_rss_mb', float('nan')):.0f} | {lo['upper']:.6g} | "
+                f"{lo['lower']:.6g} | {gl:.6g} | {ratio:.2f} | {lo['certified']} | {lo['certificate_worst']:.1e} |")
+    return "\n".join(lines) + "\n"
+
+
+def _per_sweep(lo: dict) -> str:
+    n = int(lo.get("sweeps", 0) or 0)
+    return f"{lo['timings']['sweeps'] / n:.3f}" if n and "sweeps" in lo["timings"] else "-"
+
+
+def measure(mode: str, out: Path) -> dict:
+    results = {"cases": []}
+    for problem, sizes in (QUICK if mode == "quick" else CASES).items():
+        for div in sizes:
+            case = {"problem": problem, "divisions": list(div)}
+            case["newton"] = run_child(__file__, [problem, list(div), "newton"], cwd=ROOT)
+            case["global"] = run_child(__file__, [problem, list(div), "global"], cwd=ROOT)
+            for s in SWEEPS[problem]:
+                case[f"local-{s}"] = run_child(__file__, [problem, list(div), f"local-{s}"], cwd=ROOT)
+            results["cases"].append(case)
+            print(json.dumps(case), flush=True)
+    return results
+
+
+def main(argv=None) -> int:
+    return run_record(__doc__, "the cylinder at 576 triangles", HERE, TITLE, "local lower-bound study", measure,
+                      report, argv=argv, study=STUDY, child=lambda spec: run_one(*spec))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

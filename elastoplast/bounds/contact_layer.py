@@ -35,6 +35,9 @@ from elastoplast.fem.discretize import Discretization
 #: element rings around Γ0 that carry the correction (one ring is too thin: carrying
 #: self-balanced nodal forces across a thin layer takes bending stresses ~ 1/h larger)
 LAYER_RINGS = 3
+#: the layer also reaches this many (largest) Γ0 facet lengths away from Γ0: rings of a graded
+#: mesh are thin, and the correction grows like one over the layer's depth
+LAYER_DEPTH = 3.0
 #: weight of the force and moment rows in the pressure's least-squares fit
 MOMENT_WEIGHT = 1e3
 #: contact zones up to this many nodes are fitted with dense algebra (the moment rows couple every node)
@@ -125,6 +128,12 @@ def contact_pressure_and_correction(disc: Discretization, faces: Faces, S: np.nd
     near = on_contact.copy()
     for _ in range(rings - 1):  # grow the layer by whole vertex stars
         near[cells[near[cells].any(axis=1)].ravel()] = True
+    # and to a depth of LAYER_DEPTH contact facets (on graded meshes the rings are thin)
+    from scipy.spatial import cKDTree
+
+    depth = LAYER_DEPTH * float(measure.max(initial=0.0))
+    dist, _ = cKDTree(disc.mesh.points[on_contact]).query(disc.mesh.points, distance_upper_bound=depth)
+    near |= dist <= depth
     layer = np.flatnonzero(near[cells].any(axis=1))
     ms = len(MANDEL_PAIRS[d])
     E = mandel_to_tensor(np.eye(ms), d)  # (ms, d, d)

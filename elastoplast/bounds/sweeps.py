@@ -129,7 +129,7 @@ def balance_matrices(points: np.ndarray, cells: np.ndarray, areas: np.ndarray) -
     return C.reshape(n, d + len(pairs), -1)
 
 
-def _element_energy(sig: np.ndarray, w: np.ndarray, MA: np.ndarray, M: np.ndarray, sy: float, H: float):
+def element_energy(sig: np.ndarray, w: np.ndarray, MA: np.ndarray, M: np.ndarray, sy: float, H: float):
     """``J_e`` of sub-vertex stresses ``sig (n, s, b, k)`` (sub volumes ``w (n,)``; ``MA = M (x) A``)."""
     n, s = sig.shape[:2]
     flat = sig.reshape(n, s, -1)
@@ -323,7 +323,7 @@ def _star_step(b: StarBatch, maps: ElementMaps, faces: Faces, t: np.ndarray, vol
     te = batch_tractions(b, faces, t)
     sig = (L @ te[:, None, :, None])[..., 0] + np.tile(ctx["base"][flat], (1, d1))[:, None, :]  # (N, s, b k)
     sig4 = sig.reshape(N, d1, d1, k)
-    J0 = _element_energy(sig4, w, MA, M, sy, H).reshape(m, ne).sum(axis=1)
+    J0 = element_energy(sig4, w, MA, M, sy, H).reshape(m, ne).sum(axis=1)
     WL = np.matmul(MA, L) * w[:, None, None, None]
     gs = (sig @ MA.T) * w[:, None, None]  # (N, s, b k)
     Hel = np.matmul(L.reshape(N, -1, nte).transpose(0, 2, 1), WL.reshape(N, -1, nte))  # (N, x, x)
@@ -355,7 +355,7 @@ def _star_step(b: StarBatch, maps: ElementMaps, faces: Faces, t: np.ndarray, vol
     best = np.zeros(m)
     bestJ = J0.copy()
     for a in STEPS:
-        Ja = _element_energy((sig + a * dsig).reshape(N, d1, d1, k), w, MA, M, sy, H).reshape(m, ne).sum(1)
+        Ja = element_energy((sig + a * dsig).reshape(N, d1, d1, k), w, MA, M, sy, H).reshape(m, ne).sum(1)
         better = (Ja < bestJ) & (best == 0)
         best[better] = a
         bestJ[better] = Ja[better]

@@ -33,6 +33,7 @@ import scipy.sparse as sp
 
 from elastoplast.bounds.equilibrate import Faces, element_tractions, segment_ranges
 from elastoplast.bounds.lift import MANDEL_PAIRS, ElementMaps, mandel_to_tensor, reference_lift, tensor_to_mandel
+from elastoplast.bounds.lift import balance_matrices as vertex_balance_matrices
 from elastoplast.bounds.repair import project_affine
 from elastoplast.bounds.static import mass_matrix
 from elastoplast.fem.material import Material, deviator_matrix, von_mises
@@ -47,8 +48,9 @@ STEPS = (1.0, 0.5, 0.25)
 #: passes of :func:`repair_balance` at most (each visits every colour)
 REPAIR_PASSES = 4
 #: the element imbalance (relative to ``|C_e| max|t|``) below which the repair stops: round-off
-#: (the lift turns it into traction jumps up to ~100 times larger, more on graded meshes:
-#: at 1e-14, 25,600 triangles were refused at 1.7-4.2e-12)
+#: (the lift leaves an element's imbalance on its facets in the physical metric,
+#: :func:`~elastoplast.bounds.lift.lift`; before its refinement it amplified it up to 1e4
+#: times on elements of condition number 100-150)
 REPAIR_TOL = 2e-15
 
 
@@ -108,25 +110,8 @@ def lift_matrices(maps: ElementMaps, elems: np.ndarray, T: np.ndarray) -> np.nda
 
 def balance_matrices(points: np.ndarray, cells: np.ndarray, areas: np.ndarray) -> np.ndarray:
     """``(n, nb, (d+1)(d+1)d)``: force and moment (about the centroid) of an element's outward
-    vertex tractions ``t[i, a, j]`` (zero weight where a == i)."""
-    n, d1 = cells.shape
-    d = d1 - 1
-    X = points[cells]
-    X = X - X.mean(axis=1, keepdims=True)
-    Mf = np.full((d1, d1), 1.0 / (d * (d + 1)))
-    Mf[np.diag_indices(d1)] = 2.0 / (d * (d + 1))
-    mask = 1.0 - np.eye(d1)  # (i, a)
-    pairs = [(k, l) for k in range(d) for l in range(k + 1, d)]
-    C = np.zeros((n, d + len(pairs), d1, d1, d))
-    for j in range(d):
-        C[:, j, :, :, j] = areas[:, :, None] / d * mask
-    # int_f x_k t_l = |f| sum_{a,b in f} M_ab x_a,k t_b,l
-    W = areas[:, :, None, None] * (mask[:, :, None] * mask[:, None, :] * Mf)[None]  # (n, i, a, b)
-    xw = np.einsum("niab,nak->nibk", W, X)  # (n, i, b, k)
-    for r, (k, l) in enumerate(pairs):
-        C[:, d + r, :, :, l] += xw[..., k]
-        C[:, d + r, :, :, k] -= xw[..., l]
-    return C.reshape(n, d + len(pairs), -1)
+    vertex tractions ``t[i, a, j]`` (zero weight where a == i; :func:`~elastoplast.bounds.lift.balance_matrices`)."""
+    return vertex_balance_matrices(points[cells], areas)
 
 
 def element_energy(sig: np.ndarray, w: np.ndarray, MA: np.ndarray, M: np.ndarray, sy: float, H: float):

@@ -137,6 +137,21 @@ def abs_transpose_product(B, x: np.ndarray) -> np.ndarray:
     return out
 
 
+def abs_product(B, x: np.ndarray) -> np.ndarray:
+    """``|B| x`` for a CSR ``B``, in the chunks of rows of :func:`abs_transpose_product`
+    (row by row the same sums as one product: the same values; a copy of ``|B|``
+    at a million tetrahedra was 0.6 GB of fresh pages, 0.37 s per certificate at 375k)."""
+    import scipy.sparse as sp
+
+    out = np.empty(B.shape[0])
+    for s in range(0, B.shape[0], ABS_CHUNK_ROWS):
+        e = min(s + ABS_CHUNK_ROWS, B.shape[0])
+        p0, p1 = B.indptr[s], B.indptr[e]
+        out[s:e] = sp.csr_matrix((np.abs(B.data[p0:p1]), B.indices[p0:p1], B.indptr[s:e + 1] - p0),
+                                 shape=(e - s, B.shape[1])) @ x
+    return out
+
+
 def shaped(a, shape: tuple[int, ...], name: str) -> np.ndarray:
     """``a`` as a float array of ``shape`` (the same number of entries in any layout), or
     an :class:`~elastoplast.errors.InputError` naming ``name`` and the shape expected:
@@ -171,8 +186,7 @@ def propagated(disc: Discretization, u_free: np.ndarray) -> np.ndarray:
     ``B u``, its rounding does not)."""
     absC = np.abs(disc.material.stiffness(disc.dim))
     B = disc.B.tocsr()
-    absB = type(B)((np.abs(B.data), B.indices, B.indptr), shape=B.shape)  # shares B's index arrays
-    scale = (absB @ np.abs(u_free)).reshape(disc.n_elements, disc.k) @ absC
+    scale = abs_product(B, np.abs(u_free)).reshape(disc.n_elements, disc.k) @ absC
     return abs_transpose_product(B, (scale * disc.volumes[:, None]).ravel())
 
 

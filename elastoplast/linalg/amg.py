@@ -16,7 +16,9 @@ metric need for that path:
 * :func:`constrain`: Dirichlet rows and columns (the clamped dofs and the
   active contact dofs of a Newton face) replaced by their diagonal;
 * :class:`AMG`: pyamg's smoothed aggregation with the rigid-body motions of the
-  nodes as near-null space, one V-cycle as preconditioner;
+  nodes as near-null space (:data:`AMG_SETTINGS`), one V-cycle as preconditioner,
+  refreshed for a new matrix of the same pattern on its kept prolongators
+  (:meth:`AMG.refresh`);
 * :class:`BorderedSystem`: the matrix ``[[A, b], [b^T, c]]`` of a stiffness
   coupled to one extra unknown (the rigid body's displacement U, coupled to
   every contact dof), preconditioned by block elimination of U with the AMG
@@ -110,26 +112,90 @@ def near_null_space(lay: BlockLayout) -> np.ndarray:
 # ----------------------------------------------------------------------------
 
 
+#: pyamg's settings of :class:`AMG`, each changed alone and measured (a one-off sweep,
+#: 2026-12-01, on a machine shared with other jobs) on the elastic stiffness that
+#: ``benchmarks/scale/elastic.py`` solves: CPU s of set-up + CG to 1e-10, one BLAS
+#: thread, at 118k / 1.03M tetrahedra. The previous settings (theta = 0,
+#: Jacobi-smoothed prolongators weighted by an eigenvalue estimate, symmetric block
+#: Gauss-Seidel) 2.5 / 27-29 s, 30 / 40 CG iterations; strength theta = 0.02
+#: 2.1-2.4 / 25.8 s, 26 / 33 iterations (theta = 0.05: 20 iterations at 1M, but an
+#: operator complexity of 3.1 and 34 s); then the prolongator's weight from row sums
+#: ("local") instead of the eigenvalue estimate (15 of the 90 fine matrix-vector
+#: products of a set-up each): 40% less set-up at 118k for one iteration more (2.2 s,
+#: 27 its; 1M: 4.8 s set-up, 26.2 s in all, 36 its);
+#: Jacobi, block Jacobi or Chebyshev smoothing 3.1-4.7 s (75-95 iterations), forward
+#: then backward Gauss-Seidel (half the sweeps, 41 iterations) 2.3 s; naive aggregation
+#: or evolution strength 4.3-6.5 s (operator complexity 3.5-3.9); a coarse grid of
+#: 2000 block rows instead of 500 3.3-3.8 s (its LU dominates a V-cycle); float32
+#: levels 12% faster, not taken (a preconditioner that is not symmetric to
+#: working precision); improving the candidates by Gauss-Seidel 0.3 s more set-up
+#: for one iteration less.
+AMG_SETTINGS = {
+    "strength": ("symmetric", {"theta": 0.02}),
+    "smooth": ("jacobi", {"omega": 4.0 / 3.0, "weighting": "local"}),
+    "presmoother": ("block_gauss_seidel", {"sweep": "symmetric"}),
+    "postsmoother": ("block_gauss_seidel", {"sweep": "symmetric"}),
+    "improve_candidates": None,
+    "max_coarse": 500,
+    "coarse_solver": "splu",
+}
+
+
 class AMG:
     """One smoothed-aggregation hierarchy (pyamg) of a BSR matrix; ``apply(r)``
     is one V-cycle, a symmetric positive definite approximation of ``A^{-1}``.
 
-    Measured choices (benchmarks/scale/README.md): the rigid-body motions as
-    near-null space, symmetric strength with theta = 0, symmetric block
-    Gauss-Seidel smoothing.
+    The rigid-body motions of the nodes are the near-null space; the rest is
+    :data:`AMG_SETTINGS`. :meth:`refresh` lets the hierarchy serve a new matrix of
+    the same pattern (a new tangent, a new face) for a fraction of a set-up.
     """
 
     def __init__(self, A: sp.bsr_matrix, B: np.ndarray, **kwargs):
         import pyamg
 
         t0 = time.process_time()
-        kwargs.setdefault("improve_candidates", None)
-        self.hierarchy = pyamg.smoothed_aggregation_solver(A, B=B, max_coarse=500, coarse_solver="splu", **kwargs)
+        self.settings = {**AMG_SETTINGS, **kwargs}
+        self.hierarchy = pyamg.smoothed_aggregation_solver(A, B=B, **self.settings)
         self._M = self.hierarchy.aspreconditioner(cycle="V")
         self.setup_time = time.process_time() - t0  # CPU seconds: the reuse policy compares costs, not load
+        self.refresh_time = 0.0
 
     def apply(self, r: np.ndarray) -> np.ndarray:
         return self._M @ r
+
+    def refresh(self, A: sp.bsr_matrix, galerkin: bool = True) -> None:
+        """Serve ``A`` (the pattern and near-null space of the matrix of the set-up)
+        with the kept aggregates and prolongators ``P``: the finest level becomes
+        ``A`` and, with ``galerkin``, each coarse operator ``R A P`` again, updated
+        by ``R (A - A_old) P`` where the blocks of ``A - A_old`` are nonzero (the
+        plastic elements and the changed face: a few percent of the blocks); then
+        the smoothers and the coarsest factorisation anew."""
+        from pyamg.multilevel import coarse_grid_solver
+        from pyamg.relaxation.smoothing import change_smoothers
+
+        t0 = time.process_time()
+        levels = self.hierarchy.levels
+        delta = changed_blocks(levels[0].A, A) if galerkin else None
+        levels[0].A = A
+        if delta is not None:
+            for fine, coarse in zip(levels[:-1], levels[1:]):
+                delta = fine.R @ (delta @ fine.P)
+                coarse.A = (coarse.A + delta).tobsr(blocksize=coarse.A.blocksize)
+            self.hierarchy.coarse_solver = coarse_grid_solver(self.settings["coarse_solver"])
+        change_smoothers(self.hierarchy, self.settings["presmoother"], self.settings["postsmoother"])
+        self.refresh_time = time.process_time() - t0
+
+
+def changed_blocks(old: sp.bsr_matrix, new: sp.bsr_matrix) -> sp.bsr_matrix:
+    """``new - old`` for two BSR matrices of one pattern, with only the blocks that differ stored."""
+    # one byte per entry compared, the differences of the few changed blocks only: 0.055 s
+    # at 1.03M tetrahedra against 0.18-0.54 s for the whole float difference
+    differs = np.flatnonzero(np.not_equal(new.data, old.data).reshape(-1))
+    keep = np.unique(differs // old.data[0].size)
+    rows = np.searchsorted(old.indptr, keep, side="right") - 1
+    indptr = np.zeros(len(old.indptr), dtype=old.indptr.dtype)
+    np.cumsum(np.bincount(rows, minlength=len(indptr) - 1), out=indptr[1:])
+    return sp.bsr_matrix((new.data[keep] - old.data[keep], old.indices[keep], indptr), shape=old.shape)
 
 
 @dataclass
@@ -210,6 +276,14 @@ def pcg(matvec, precond, b: np.ndarray, x0: np.ndarray | None = None, rtol: floa
 # ----------------------------------------------------------------------------
 
 
+#: how a kept hierarchy serves a new matrix or face (:meth:`AMG.refresh`): "galerkin"
+#: (new finest level and coarse operators on the kept prolongators), "fine" (new finest
+#: level only) or None (the hierarchy as set up). Measured on Newton to KKT 1e-8 on the
+#: default problem: at 118k tetrahedra 102 / 77 / 52 CG iterations in all and 4 / 1 / 1
+#: set-ups (None / "fine" / "galerkin"); at 1.03M, "galerkin" 66 CG iterations and one
+#: set-up against 182 and five with None (benchmarks/scale/elastic.md).
+REFRESH = "galerkin"
+
 #: CG iterations a solve needs before its residual reduction per iteration counts
 RATE_MIN_ITERATIONS = 3
 
@@ -238,21 +312,27 @@ class FaceSystems:
     the current hierarchy and ``rate_fresh`` the one measured when it was
     built, a new one is set up when the iterations it would save on a solve to
     ``rtol``, ``log(rtol) (1/rate - 1/rate_fresh)``, cost more than its set-up
-    time (``reuse=False``: a new one for every solve).
+    time less what serving the new matrix costs (``reuse=False``: a new one for
+    every solve). A kept hierarchy serves each new matrix or face through
+    :meth:`AMG.refresh` (``refresh``, :data:`REFRESH`): its finest level and, with
+    "galerkin", its coarse operators are the new matrix's; only the aggregates
+    and prolongators are the old ones.
     """
 
     def __init__(self, lay: BlockLayout, free_index: np.ndarray, cdofs: np.ndarray, data: np.ndarray,
-                 weight: float = 0.0, reuse: bool = True, recycle: int = 0):
+                 weight: float = 0.0, reuse: bool = True, recycle: int = 0, refresh: str | None = REFRESH):
         self.lay, self.free_index, self.weight, self.reuse = lay, free_index, float(weight), reuse
+        self.refresh = refresh
         self.recycle = recycle
         self.previous: list[np.ndarray] = []
+        self._products: dict = {}
         self.ec = np.zeros(lay.n_dofs)
         self.ec[free_index[cdofs]] = 1.0
         self.near_null = near_null_space(lay)
         self.amg: AMG | None = None
         self.rate_fresh = self.rate = 0.0
         self.iteration_time = 0.0
-        self.setups = 0
+        self.setups = self.refreshes = 0
         self.set_matrix(data)
 
     def set_matrix(self, data: np.ndarray) -> None:
@@ -281,7 +361,8 @@ class FaceSystems:
         if self.rate_fresh >= 0.0:
             return True
         goal = np.log(max(rtol, 1e-16))
-        return (goal / self.rate - goal / self.rate_fresh) * self.iteration_time > self.amg.setup_time
+        return (goal / self.rate - goal / self.rate_fresh) * self.iteration_time \
+            > self.amg.setup_time - self.amg.refresh_time
 
     def solve(self, fixed: np.ndarray, rhs: np.ndarray, rtol: float, x0: np.ndarray | None = None,
               max_iter: int = 1000) -> tuple[np.ndarray, dict]:
@@ -306,6 +387,9 @@ class FaceSystems:
             self.amg = self._cached = None  # free the old hierarchy first
             self.amg = AMG(A, self.near_null)
             self.setups += 1
+        elif self.refresh:
+            self.amg.refresh(A, galerkin=self.refresh == "galerkin")
+            self.refreshes += 1
         system = BorderedSystem(A, self.amg, np.where(fixed_dofs, 0.0, self.Kec), self.c)
         self._cached = (self.data, fixed_dofs, system)
         return system, rebuild
@@ -344,10 +428,18 @@ class FaceSystems:
                      "setup_time": t1 - t0, "solve_time": t2 - t1}
 
     def _galerkin_start(self, system: BorderedSystem, r: np.ndarray, fixed_dofs: np.ndarray) -> tuple[np.ndarray, float]:
-        """``x0 = V c`` with ``(V^T H V) c = V^T r`` over the kept solutions, and ``|r - H x0|``."""
+        """``x0 = V c`` with ``(V^T H V) c = V^T r`` over the kept solutions, and ``|r - H x0|``.
+
+        ``H v`` of a kept solution is kept too while the face system is the same
+        object (Uzawa's metric and, once the contact set settles, its face do not
+        change): one product per solve instead of one per kept solution."""
         V = np.stack(self.previous, axis=1)
         V[:-1][fixed_dofs] = 0.0
-        HV = np.stack([system.matvec(v) for v in V.T], axis=1)
+        known = self._products.get("system") is system
+        products = [self._products[id(v)][1] if known and id(v) in self._products and self._products[id(v)][0] is v
+                    else system.matvec(col) for v, col in zip(self.previous, V.T)]
+        self._products = {"system": system, **{id(v): (v, hv) for v, hv in zip(self.previous, products)}}
+        HV = np.stack(products, axis=1)
         coef = np.linalg.lstsq(V.T @ HV, V.T @ r, rcond=1e-12)[0]
         return V @ coef, float(np.linalg.norm(r - HV @ coef))
 
@@ -366,4 +458,5 @@ class FaceSystems:
         return x[self.free_index]
 
     def release(self) -> None:
-        self.amg = None
+        self.amg = self._cached = None
+        self._products = {}

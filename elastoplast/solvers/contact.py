@@ -302,12 +302,12 @@ class IterativeProjection:
             fixed[cd[W]] = True
             d_fixed = np.zeros(y.size)
             d_fixed[cd[W]] = lower[W] - y[cd[W]]
-            rhs = -g - faces.matvec(d_fixed)
+            rhs = -g - faces.matvec(d_fixed) if W.any() else -g
             d, info = faces.solve(fixed, rhs, self.rtol)
             d[fixed] = d_fixed[fixed]
             self.cg_iterations += info["cg_iterations"]
             self.active_set_iterations += 1
-            mu = (faces.matvec(d) + g)[cd]
+            mu = faces.matvec_contact(d) + g[cd]
             w_new = y[cd] + d[cd]
             violated = ~W & (w_new < lower)
             negative = W & (mu < 0.0)

@@ -101,12 +101,15 @@ class Monitor:
         return time.perf_counter() - self.t_start
 
     def check(self, n: int, sigma: np.ndarray, xi: np.ndarray, u: np.ndarray, U: float, *,
-              tol: float | None = None, nd: Discretization | None = None, **extra: Any) -> Verdict | None:
+              tol: float | None = None, nd: Discretization | None = None, internal_force: np.ndarray | None = None,
+              **extra: Any) -> Verdict | None:
         """Certify the candidate of iteration ``n`` (scaled units, ``u`` on the
         free dofs), append a history row and say whether to stop (``None``: go on).
 
         ``tol`` and ``nd`` override the options' tolerance and the scaled
         problem (intermediate load steps certify at their own force).
+        ``internal_force``: ``nd.internal_force(sigma)`` when the caller has it
+        (the history's active count only; the certificate computes its own).
         """
         nd = self.nd if nd is None else nd
         tol = self.options.tol if tol is None else tol
@@ -114,7 +117,10 @@ class Monitor:
         kkt = certify(nd, sigma, xi, nd.full_displacement(u), U)
         self.last = kkt
         worst = kkt.worst
-        r = nd.internal_force(sigma) if finite else np.full(nd.n_free, np.nan)
+        if not finite:
+            r = np.full(nd.n_free, np.nan)
+        else:
+            r = nd.internal_force(sigma) if internal_force is None else internal_force
         lam = nd.N @ r
         row = {
             "iteration": int(n), "residuals": kkt.as_dict(), "kkt_worst": worst, "U": float(U) * self.units.displacement,

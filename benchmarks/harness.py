@@ -42,6 +42,16 @@ def peak_memory() -> int:
     raise OSError("no VmHWM in /proc/self/status")
 
 
+def shipped_problem(name: str, divisions) -> "Any":
+    """The discretisation of ``problems/<name>.toml`` with its mesh divisions replaced."""
+    import elastoplast as ep
+
+    problems = ROOT / "problems"
+    data = ep.read_toml(problems / f"{name}.toml")
+    data["mesh"]["divisions"] = list(divisions)
+    return ep.discretize(ep.problem_from_dict(data, base_dir=problems))
+
+
 def script_command() -> str:
     """The running command as ``python <script> <args>``, the script's path taken
     relative to the repository when it lies inside it (as the READMEs write it)."""

@@ -15,14 +15,13 @@ paired with the same upper bound. Writes ``local.json`` and ``local.md`` beside 
 
 from __future__ import annotations
 
-import copy
 import json
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from harness import peak_memory, run_child, run_record  # noqa: E402
+from harness import peak_memory, run_child, run_record, shipped_problem  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -36,21 +35,13 @@ QUICK = {"cylinder_2d": [(24, 12)]}
 SWEEPS = {"cylinder_2d": (0, 6, 12), "sphere_quarter_3d": (0, 1), "sphere_block_3d": (0,)}
 
 
-def _disc(problem: str, divisions):
-    import elastoplast as ep
-
-    data = ep.read_toml(PROBLEMS / f"{problem}.toml")
-    data["mesh"]["divisions"] = list(divisions)
-    return ep.discretize(ep.problem_from_dict(copy.deepcopy(data), base_dir=PROBLEMS))
-
-
 def run_one(problem: str, divisions, what: str) -> dict:
     import elastoplast as ep
     from elastoplast.bounds.local import local_lower_bound
     from elastoplast.bounds.lower import solve_lower_bound
     from elastoplast.bounds.upper import best_upper_bound
 
-    disc = _disc(problem, divisions)
+    disc = shipped_problem(problem, divisions)
     out = {"n_elements": int(disc.n_elements)}
     t0 = time.perf_counter()
     if what == "global":

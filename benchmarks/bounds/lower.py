@@ -14,14 +14,13 @@ file (or into ``--out``; ``--quick`` writes into ``benchmarks/bounds/quick/``);
 
 from __future__ import annotations
 
-import copy
 import json
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from harness import peak_memory, run_child, run_record  # noqa: E402
+from harness import peak_memory, run_child, run_record, shipped_problem  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -36,20 +35,12 @@ CASES = {
 QUICK = {"cylinder_2d": [(24, 12), (40, 20)], "sphere_quarter_3d": [(3, 3, 3)]}
 
 
-def _disc(problem: str, divisions):
-    import elastoplast as ep
-
-    data = ep.read_toml(PROBLEMS / f"{problem}.toml")
-    data["mesh"]["divisions"] = list(divisions)
-    return ep.discretize(ep.problem_from_dict(copy.deepcopy(data), base_dir=PROBLEMS))
-
-
 def run_one(problem: str, divisions, what: str) -> dict:
     """One solve in this process: ``what`` is 'conic' or 'lower-<linear solver>'."""
     import elastoplast as ep
     from elastoplast.bounds.lower import LowerBoundOptions, solve_lower_bound
 
-    disc = _disc(problem, divisions)
+    disc = shipped_problem(problem, divisions)
     out = {"n_elements": int(disc.n_elements)}
     t0 = time.perf_counter()
     if what == "conic":

@@ -34,7 +34,7 @@ import numpy as np
 from elastoplast.bounds.equilibrate import (average_moments, element_nodal_forces, element_tractions,
                                             facet_tractions, mesh_faces, star_moments)
 from elastoplast.bounds.lift import IN_PLANE, element_maps, lift, mandel_to_tensor, split_mesh, tensor_to_mandel
-from elastoplast.bounds.static import (CERTIFY_TOL, LocalTerms, StaticCertificate, StaticField, certify_static,
+from elastoplast.bounds.static import (CERTIFY_TOL, LocalTerms, StaticField, certify_static,
                                        local_terms, mass_matrix, psi_weights)
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization

@@ -265,7 +265,7 @@ def _solve_uzawa(disc: Discretization, options: UzawaOptions) -> Solution:
     u, U, _ = proj(u, U, np.zeros(nd.n_free), 0.0, nd.force, nd.N, nd.psi)
     timings["setup"] = time.perf_counter() - t_start
 
-    interval, n, checks, next_check = options.check_every or 1, 0, 0, 0
+    interval, n, checks, next_check, t_first = options.check_every or 1, 0, 0, 0, 0.0
     while True:
         t0 = time.perf_counter()
         sigma, xi = project_stresses(nd.material, nd.strain(u), nd.state)  # step (i)

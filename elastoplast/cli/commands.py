@@ -9,7 +9,7 @@ import warnings
 from importlib import resources
 from pathlib import Path
 from typing import Any, Iterator, Mapping
-from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK
+from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK, outcome
 from elastoplast.errors import FIELD_WIDTH, InputError, elide
 from elastoplast.cli.paths import has_path, refuse_path, solve_path_command
 from elastoplast.cli.printing import discretize_file, figure, problem_line
@@ -147,10 +147,7 @@ def _solve(args: argparse.Namespace) -> int:
           f"plastic volume = {figure(100 * data['plastic_volume_fraction'], '.2f')}%")
     print(f"KKT worst residual {figure(sol.kkt.worst, '.2e')}, duality gap {figure(sol.duality_gap, '.2e')}, "
           f"{sol.iterations} iterations, {sol.time_s:.2f} s -> {Path(args.out) / 'summary.json'}")
-    if not sol.converged:
-        print(f"not converged: {sol.message}", file=sys.stderr)
-        return EXIT_NOT_CONVERGED
-    return EXIT_OK
+    return outcome(sol.converged, f"not converged: {sol.message}")
 
 
 def _bounds(args: argparse.Namespace) -> int:
@@ -186,10 +183,7 @@ def _bounds(args: argparse.Namespace) -> int:
           f"{figure(b.energy_gap_rel, '.2e')}){bracket} (discrete U = {figure(sol.U, '.6g')}); stress error <= "
           f"{figure(b.stress_error_bound, '.4g')} ({figure(100 * b.stress_error_bound_rel, '.2f')}%); "
           f"{'certified' if report.certified else 'NOT certified'} -> {Path(args.out) / 'summary.json'}")
-    if not report.certified:
-        print(f"not certified: upper: {report.upper.message}; lower: {report.lower.message}", file=sys.stderr)
-        return EXIT_NOT_CONVERGED
-    return EXIT_OK
+    return outcome(report.certified, f"not certified: upper: {report.upper.message}; lower: {report.lower.message}")
 
 
 def _limit(args: argparse.Namespace) -> int:

@@ -16,7 +16,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Mapping
 
-from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK
+from elastoplast.cli.exits import outcome
 from elastoplast.cli.printing import discretize_file, figure, problem_line
 from elastoplast.errors import InputError
 from elastoplast.fem.discretize import Discretization
@@ -130,10 +130,7 @@ def solve_path_command(args: argparse.Namespace, path: Path, data: dict, method:
     print(f"{record['status']}: {record['message']}; U = {figure(record['U'], '.6g')} at the last step{extra}")
     print(f"KKT worst residual over the steps {figure(record['kkt_worst'], '.2e')}, {record['iterations']} "
           f"iterations, {result.time_s:.2f} s -> {Path(args.out) / 'summary.json'}")
-    if not result.converged:
-        print(f"not converged: {record['message']}", file=sys.stderr)
-        return EXIT_NOT_CONVERGED
-    return EXIT_OK
+    return outcome(result.converged, f"not converged: {record['message']}")
 
 
 def path_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:

@@ -27,7 +27,7 @@ from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import Prestate, return_mapping
 from elastoplast.options import SolverOptions
 from elastoplast.problem.definition import check_forces
-from elastoplast.solvers.registry import check_solvable, get_method, method_options
+from elastoplast.solvers.registry import Method, check_solvable, get_method, given_options
 
 #: a step whose force is below the last one's by more than this share unloads
 UNLOADING_SHARE = 1e-12
@@ -145,7 +145,7 @@ def check_path(forces: Any, field_name: str = "load.path") -> tuple[float, ...]:
     return check_forces(forces, field_name)
 
 
-def _guess(disc: Discretization, prev: PathStep | None, before: PathStep | None, force: float) -> Solution | None:
+def _guess(prev: PathStep | None, before: PathStep | None, force: float) -> Solution | None:
     """A start for the next step: the last increment scaled to the next force
     step (its direction is the likeliest), with U and the contact forces
     likewise; None on the first step or when the last step did not converge."""
@@ -160,16 +160,15 @@ def _guess(disc: Discretization, prev: PathStep | None, before: PathStep | None,
     return replace(sol, u=ratio * sol.u, U=sol.U + ratio * dU, contact_force=sol.contact_force * (force / f_prev))
 
 
-def _run(disc: Discretization, method: str, options: SolverOptions, start: Solution | None) -> Solution:
-    m = get_method(method)
+def _run(disc: Discretization, m: Method, options: SolverOptions, start: Solution | None) -> Solution:
+    """One step by ``m``, from ``start`` where the method takes one (:data:`WARM_STARTS`)."""
     check_solvable(disc, m.name, options)
-    if start is None or m.name not in WARM_STARTS:
-        return m.run(disc, options)
-    if m.name == "newton":
+    takes = WARM_STARTS.get(m.name) if start is not None else None
+    if takes == "warm_start":  # newton's argument
         from elastoplast.solvers.newton import solve_newton
 
         return solve_newton(disc, options, warm_start=start)
-    return m.run(disc, replace(options, initial=start))
+    return m.run(disc, options if takes is None else replace(options, **{takes: start}))
 
 
 def solve_path(disc: Discretization, forces: Sequence[float], method: str = "conic", *,
@@ -190,10 +189,9 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
     if disc.state is not None:
         raise InputError("disc", "is already a step of a path: give the problem's discretisation (ep.discretize)")
     forces = check_path(forces, "forces")
-    if options is not None and values:
-        raise InputError("options", "give an options object or keyword options, not both")
-    name = get_method(method).name
-    opts = method_options(method, options if options is not None else values)
+    m_run = get_method(method)
+    name = m_run.name
+    opts = given_options(method, options, values)
     if getattr(opts, "load_steps", 1) != 1:
         raise InputError("load_steps", f"is {opts.load_steps}: a path takes no hidden sub-steps (they would change "
                                        "the answer of Prandtl-Reuss' law); put the intermediate forces in the path")
@@ -206,14 +204,15 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
     prev = before = None
     for i, force in enumerate(forces):
         step_disc = disc.step(force, state, u_free)
-        start = _guess(step_disc, prev, before, force) if warm_start else None
-        sol = _run(step_disc, method, opts, start)
+        start = _guess(prev, before, force) if warm_start else None
+        sol = _run(step_disc, m_run, opts, start)
         du = step_disc.free_displacement(sol.u)
+        d_eps = step_disc.strain(du)
         beyond = small_strain_note(disc, u_free + du)  # the total strain, not the increment's
         if sol.converged and beyond:
             sol = replace(sol, status=Status.FAILED, message=f"{sol.message}; {beyond}")
-        _, _, dkappa = return_mapping(m, step_disc.strain(du), state)
-        dp = step_disc.strain(du) - (sol.sigma - state.sigma) @ m.compliance(disc.dim)
+        _, _, dkappa = return_mapping(m, d_eps, state)
+        dp = d_eps - (sol.sigma - state.sigma) @ m.compliance(disc.dim)
         work = float(disc.volumes @ np.einsum("ei,ei->e", sol.sigma, dp))
         unloading = prev is not None and force < prev.force * (1.0 - UNLOADING_SHARE)
         u_free = u_free + du

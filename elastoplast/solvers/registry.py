@@ -195,9 +195,15 @@ def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOpt
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     if disc.problem.path is not None:  # a step (state set) is Hencky-shaped and solved here; a whole path is not
         check_hencky(disc, "ep.solve")
-    if options is not None and values:
-        raise InputError("options", "give an options object or keyword options, not both")
     m = get_method(method)
-    opts = method_options(method, options if options is not None else values)
+    opts = given_options(method, options, values)
     check_solvable(disc, m.name, opts)
     return m.run(disc, opts)
+
+
+def given_options(method: str, options: SolverOptions | None, values: Mapping[str, Any]) -> SolverOptions:
+    """The checked options of ``method`` given as an options object or as keywords
+    (not both), as :func:`solve` and :func:`~elastoplast.solvers.path.solve_path` take them."""
+    if options is not None and values:
+        raise InputError("options", "give an options object or keyword options, not both")
+    return method_options(method, options if options is not None else values)

@@ -19,7 +19,8 @@ import scipy.sparse.linalg as spla
 import elastoplast as ep
 from conftest import build, cylinder_dict, energy_error, sphere_quarter_dict
 from elastoplast.fem.assembly import assemble, element_geometry
-from elastoplast.linalg.amg import FaceSystems, block_layout, bsr, contact_dofs
+from elastoplast.linalg.amg import FaceSystems, contact_dofs
+from elastoplast.linalg.blocks import block_layout, bsr
 from elastoplast.solvers.newton import NEWTON_AMG_FROM_ELEMENTS, choose_backend, energy, forcing_term
 from elastoplast.solvers.registry import CONIC_MAX_ELEMENTS
 from elastoplast.certificate.kkt import abs_transpose_product, gaps

@@ -72,7 +72,8 @@ def package_solve(disc) -> dict:
     """The package's AMG-CG on its own BSR stiffness (every dof, clamped ones as Dirichlet rows)."""
     from elastoplast.fem.assembly import assemble
     from elastoplast.fem.discretize import nondimensionalize
-    from elastoplast.linalg.amg import AMG, BorderedSystem, block_layout, bsr, constrain, near_null_space, pcg
+    from elastoplast.linalg.amg import AMG, BorderedSystem, pcg
+    from elastoplast.linalg.blocks import block_layout, bsr, constrain, near_null_space
 
     nd, units = nondimensionalize(disc)
     lay = block_layout(nd, units.length)

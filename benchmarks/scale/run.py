@@ -76,8 +76,8 @@ def elastic_amg(disc) -> dict:
     """One elastic solve K u = f (f: the force spread evenly over the contact
     nodes): block assembly, AMG set-up, CG to relative residual 1e-10."""
     from elastoplast.fem.assembly import assemble
-    from elastoplast.linalg.amg import (AMG, BorderedSystem, block_layout, bsr, constrain, near_null_space,
-        one_blas_thread, pcg)
+    from elastoplast.linalg.amg import AMG, BorderedSystem, one_blas_thread, pcg
+    from elastoplast.linalg.blocks import block_layout, bsr, constrain, near_null_space
     from elastoplast.fem.discretize import nondimensionalize
 
     with one_blas_thread():

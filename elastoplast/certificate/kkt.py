@@ -190,6 +190,56 @@ def propagated(disc: Discretization, u_free: np.ndarray) -> np.ndarray:
     return abs_transpose_product(B, (scale * disc.volumes[:, None]).ravel())
 
 
+def _contact_rows(disc: Discretization):
+    """The rows of ``|B|`` that :func:`propagated_at_contact` reads, kept per discretisation
+    (a weak reference: the cache dies with it): the elements that touch a vertical
+    contact dof, their rows of ``|B|`` (CSR) and of ``|B|`` restricted to the contact
+    columns (CSC), and their volumes."""
+    import weakref
+
+    import scipy.sparse as sp
+
+    hit = _CONTACT_ROWS.get(id(disc))
+    if hit is not None and hit[0]() is disc:
+        return hit[1]
+    N = disc.N.tocsr()
+    cdofs = N.indices[N.indptr[:-1]]
+    B = disc.B.tocsr()
+    touches = np.zeros(B.shape[1], dtype=bool)
+    touches[cdofs] = True
+    rows_hit = np.zeros(B.shape[0], dtype=bool)
+    for s in range(0, B.shape[0], ABS_CHUNK_ROWS):  # the rows with an entry in a contact column
+        e = min(s + ABS_CHUNK_ROWS, B.shape[0])
+        p0, p1 = B.indptr[s], B.indptr[e]
+        counts = np.add.reduceat(touches[B.indices[p0:p1]], B.indptr[s:e] - p0) if p1 > p0 else np.zeros(e - s)
+        counts[np.diff(B.indptr[s:e + 1]) == 0] = 0
+        rows_hit[s:e] = counts > 0
+    elements = np.unique(np.flatnonzero(rows_hit) // disc.k)
+    rows = (elements[:, None] * disc.k + np.arange(disc.k)).ravel()
+    Be = B[rows]
+    Be = sp.csr_matrix((np.abs(Be.data), Be.indices, Be.indptr), shape=Be.shape)
+    Bc = Be[:, cdofs].tocsc()
+    value = (elements, Be, Bc, disc.volumes[elements], N.data)
+    _CONTACT_ROWS.clear()  # one discretisation at a time: the last one certified
+    _CONTACT_ROWS[id(disc)] = (weakref.ref(disc), value)
+    return value
+
+
+_CONTACT_ROWS: dict = {}
+
+
+def propagated_at_contact(disc: Discretization, u_free: np.ndarray) -> np.ndarray:
+    """``N @ propagated(disc, u_free)``: :func:`propagated` at the vertical contact dofs
+    (the only place the certificate reads it), from the elements touching them alone:
+    the same sums of the same terms (their order changes only where a contact dof's rows
+    straddle a chunk of :func:`abs_transpose_product`: the last bit of a round-off
+    threshold). Measured at 375k tetrahedra: 0.47 s -> 0.01 s per certificate."""
+    elements, Be, Bc, volumes, signs = _contact_rows(disc)
+    absC = np.abs(disc.material.stiffness(disc.dim))
+    scale = (Be @ np.abs(u_free)).reshape(elements.size, disc.k) @ absC
+    return signs * (Bc.T @ (scale * volumes[:, None]).ravel())
+
+
 def certify(
     disc: Discretization,
     sigma: np.ndarray,
@@ -240,7 +290,7 @@ def _residuals(disc: Discretization, sigma: np.ndarray, xi: np.ndarray, u_all: n
                 0.0 if disc.state is None else disc.state.displacement)  # a step: the total displacement's scale
     # a contact force within the round-off of the sum that computes r there is zero to
     # working precision: it must not count against complementarity at a wide-open gap
-    resolved = np.where(np.abs(lam) > ROUND_OFF * (disc.N @ (magnitude + propagated(disc, u_free))), lam, 0.0)
+    resolved = np.where(np.abs(lam) > ROUND_OFF * (disc.N @ magnitude + propagated_at_contact(disc, u_free)), lam, 0.0)
     return KKTResiduals(
         constitutive=float(constitutive),
         constitutive_max=float(constitutive_max),

@@ -30,13 +30,14 @@ from __future__ import annotations
 
 import contextlib
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
-from elastoplast.fem.assembly import Layout, rigid_motions
 from elastoplast.fem.discretize import Discretization
+from elastoplast.linalg.blocks import (BlockLayout, block_rows, block_transpose, bsr, constrain,
+                                      near_null_space)
 
 
 def one_blas_thread():
@@ -49,62 +50,6 @@ def one_blas_thread():
     except ImportError:  # pragma: no cover - declared as a dependency
         return contextlib.nullcontext()
     return threadpool_limits(limits=1, user_api="blas")
-
-
-@dataclass(frozen=True)
-class BlockLayout(Layout):
-    """The :class:`~elastoplast.fem.assembly.Layout` of a discretisation with what
-    the iterative path adds: ``free`` marks the free dofs (``node * d +
-    component``) and ``points`` are the nodes in the layout's length unit (for
-    the near-null space)."""
-
-    free: np.ndarray
-    points: np.ndarray = field(repr=False)
-
-    def embed(self, x_free: np.ndarray, free_index: np.ndarray) -> np.ndarray:
-        """A vector on the free dofs as a vector on every dof (zeros at fixed ones)."""
-        out = np.zeros(self.n_dofs)
-        out[free_index] = x_free
-        return out
-
-
-def block_layout(disc: Discretization, length: float = 1.0) -> BlockLayout:
-    """The block pattern of ``disc``'s mesh (``disc.layout``); nodes in units of ``length``.
-
-    ``length`` is the unit of a nondimensionalised discretisation
-    (:class:`~elastoplast.fem.discretize.Units`): ``disc.B`` and the gradients
-    of ``nondimensionalize(disc)`` are the original ones times ``length``.
-    """
-    lay = disc.layout
-    free = np.zeros(lay.n_dofs, dtype=bool)
-    free[disc.free] = True
-    return BlockLayout(**{f.name: getattr(lay, f.name) for f in fields(Layout)}, free=free,
-                       points=disc.mesh.points / length)
-
-
-def constrain(lay: BlockLayout, data: np.ndarray, fixed: np.ndarray) -> np.ndarray:
-    """Rows and columns of the ``fixed`` dofs (bool, every dof) zeroed, their diagonal kept."""
-    keep = (~fixed).reshape(lay.n_nodes, lay.dim).astype(float)
-    out = data * keep[lay.brow][:, :, None]
-    out *= keep[lay.indices][:, None, :]
-    nodes, comps = np.nonzero(fixed.reshape(lay.n_nodes, lay.dim))
-    out[lay.diag[nodes], comps, comps] = data[lay.diag[nodes], comps, comps]
-    return out
-
-
-def bsr(lay: BlockLayout, data: np.ndarray) -> sp.bsr_matrix:
-    """The BSR matrix of block values ``data`` on the layout's pattern."""
-    n = lay.n_dofs
-    return sp.bsr_matrix((data, lay.indices, lay.indptr), shape=(n, n))
-
-
-def near_null_space(lay: BlockLayout) -> np.ndarray:
-    """Rigid-body motions of the nodes ``(n_dofs, 3 or 6)``: the near-null space of
-    every stiffness-type matrix here (the clamped body has none exactly, but
-    they are the smooth, low-energy modes multigrid must coarsen well).
-    Rotations are scaled to the size of the translations."""
-    modes = rigid_motions(lay.points)
-    return modes / np.linalg.norm(modes, axis=0)
 
 
 # ----------------------------------------------------------------------------
@@ -156,12 +101,22 @@ class AMG:
         t0 = time.process_time()
         self.settings = {**AMG_SETTINGS, **kwargs}
         self.hierarchy = pyamg.smoothed_aggregation_solver(A, B=B, **self.settings)
-        self._M = self.hierarchy.aspreconditioner(cycle="V")
         self.setup_time = time.process_time() - t0  # CPU seconds: the reuse policy compares costs, not load
         self.refresh_time = 0.0
 
     def apply(self, r: np.ndarray) -> np.ndarray:
-        return self._M @ r
+        """One V-cycle from zero on ``A x = r``: what pyamg's ``aspreconditioner`` computes,
+        without the two fine-level residuals its ``solve`` adds around the cycle (``b - A x``
+        before it, at ``x = 0``, and after it, for a tolerance a preconditioner never reads):
+        two of a cycle's seven fine-level matrix passes (symmetric Gauss-Seidel before and
+        after, the residual). Measured on the elastic stiffness at 375k tetrahedra (one BLAS
+        thread): 0.25 -> 0.18 s per application; the same vector to the last bit."""
+        levels = self.hierarchy.levels
+        x = np.zeros_like(r, dtype=float)
+        if len(levels) == 1:
+            return np.asarray(self.hierarchy.coarse_solver(levels[0].A, np.asarray(r, dtype=float))).ravel()
+        self.hierarchy._MultilevelSolver__solve(0, x, np.asarray(r, dtype=float), "V")
+        return x
 
     def refresh(self, A: sp.bsr_matrix, galerkin: bool = True) -> None:
         """Serve ``A`` (the pattern and near-null space of the matrix of the set-up)
@@ -177,6 +132,9 @@ class AMG:
         levels = self.hierarchy.levels
         delta = changed_blocks(levels[0].A, A) if galerkin else None
         levels[0].A = A
+        if delta is not None and delta.nnz == 0:  # the same values: the hierarchy serves as it is
+            self.refresh_time = time.process_time() - t0
+            return
         if delta is not None:
             for fine, coarse in zip(levels[:-1], levels[1:]):
                 delta = fine.R @ (delta @ fine.P)
@@ -307,13 +265,14 @@ class FaceSystems:
     = ``K e_c`` on the other rows, ``c = e_c^T K e_c + w``, solved by CG with
     :class:`BorderedSystem` and an AMG hierarchy of ``A``.
 
-    A hierarchy serves later faces and matrices while a new one would not pay
-    for itself: with ``rate`` the log residual reduction per CG iteration with
-    the current hierarchy and ``rate_fresh`` the one measured when it was
-    built, a new one is set up when the iterations it would save on a solve to
-    ``rtol``, ``log(rtol) (1/rate - 1/rate_fresh)``, cost more than its set-up
-    time less what serving the new matrix costs (``reuse=False``: a new one for
-    every solve). A kept hierarchy serves each new matrix or face through
+    A hierarchy serves every face of the matrix it was set up on (Uzawa's metric:
+    one set-up per run). For a new matrix (Newton's next tangent) it is kept while
+    a new one would not pay for itself: with ``rate`` the log residual reduction
+    per CG iteration with the current hierarchy and ``rate_fresh`` the one
+    measured when it was built, a new one is set up when the iterations it would
+    save on a solve to ``rtol``, ``log(rtol) (1/rate - 1/rate_fresh)``, cost more
+    than its set-up time less what serving the new matrix costs (``reuse=False``:
+    a new one for every solve). A kept hierarchy serves each new matrix or face through
     :meth:`AMG.refresh` (``refresh``, :data:`REFRESH`): its finest level and, with
     "galerkin", its coarse operators are the new matrix's; only the aggregates
     and prolongators are the old ones.
@@ -324,13 +283,23 @@ class FaceSystems:
         self.lay, self.free_index, self.weight, self.reuse = lay, free_index, float(weight), reuse
         self.refresh = refresh
         self.recycle = recycle
-        self.previous: list[np.ndarray] = []
-        self._products: dict = {}
+        # the kept solutions, in place: their raw values, the same masked to the face of
+        # ``_for`` and H times those (columns, Fortran order); ``_valid`` the columns
+        # of V and HV that are ``_for``'s. Measured at 1.03M tetrahedra: two stacks of
+        # eight 1.5M-vectors a solve (0.1-0.2 s) no more
+        self._raw = self._V = self._HV = None
+        self._kept = self._slot = 0
+        self._for: BorderedSystem | None = None
+        self._valid: set[int] = set()
         self.ec = np.zeros(lay.n_dofs)
         self.ec[free_index[cdofs]] = 1.0
         self.crows = free_index[cdofs]
         self.near_null = near_null_space(lay)
+        self.transpose = block_transpose(lay)
+        self._plain: tuple | None = None
         self.amg: AMG | None = None
+        self.version = 0  # counts the matrices (set_matrix)
+        self.built_on: int | None = None  # the version of the matrix of the hierarchy's set-up
         self.rate_fresh = self.rate = 0.0
         self.iteration_time = 0.0
         self.setups = self.refreshes = 0
@@ -339,6 +308,8 @@ class FaceSystems:
 
     def set_matrix(self, data: np.ndarray) -> None:
         """A new ``K`` (block values on the layout's pattern); the hierarchy is kept."""
+        if data is not getattr(self, "data", None):  # new values (the same array: a new weight only)
+            self.version += 1
         self.data = data
         self._cached = None
         self._K_contact = None
@@ -365,13 +336,21 @@ class FaceSystems:
         multipliers: measured at 118k tetrahedra, the full products of the projection
         were 0.6 s of a 19.5 s run."""
         if self._K_contact is None:
-            self._K_contact = self.K.tocsr()[self.crows]
+            self._K_contact = block_rows(self.lay, self.data, self.crows)
         xf = self.lay.embed(x[:-1], self.free_index)
         return self._K_contact @ xf + self.Kec[self.crows] * x[-1]
 
     def _stale(self, rtol: float) -> bool:
         if self.amg is None or not self.reuse:
             return True
+        if self.version == self.built_on:
+            # a new face of the matrix the hierarchy was set up on: the refreshed hierarchy
+            # is that matrix's with other Dirichlet rows, as good as a new one. The rule
+            # below, rates of CG solves of different right-hand sides compared, set up 3
+            # hierarchies for Uzawa's one metric at 118k-1.03M tetrahedra (the solves of
+            # a projection's first face, with a right-hand side in U alone, take 15 CG
+            # iterations on a fresh hierarchy too); this one sets up one
+            return False
         if self.rate_fresh >= 0.0:
             return True
         goal = np.log(max(rtol, 1e-16))
@@ -396,10 +375,11 @@ class FaceSystems:
         if not rebuild and cached is not None and cached[0] is self.data and np.array_equal(cached[1], fixed_dofs) \
                 and cached[2].amg is self.amg:
             return cached[2], False
-        A = bsr(self.lay, constrain(self.lay, self.data, fixed_dofs))
+        A = bsr(self.lay, constrain(self.lay, self.data, fixed_dofs, self.transpose))
         if rebuild:
             self.amg = self._cached = None  # free the old hierarchy first
             self.amg = AMG(A, self.near_null)
+            self.built_on = self.version
             self.setups += 1
         elif self.refresh:
             self.amg.refresh(A, galerkin=self.refresh == "galerkin")
@@ -410,6 +390,9 @@ class FaceSystems:
 
     def _solve(self, fixed, rhs, rtol, x0, max_iter):
         lay = self.lay
+        if x0 is None and not np.any(rhs[~fixed]):  # nothing to solve: x = 0 exactly
+            return np.zeros_like(rhs, dtype=float), {"amg_setup": False, "cg_iterations": 0, "cg_residual": 0.0,
+                                                     "setup_time": 0.0, "solve_time": 0.0}
         fixed_dofs = ~lay.free
         fixed_dofs[self.free_index[fixed[:-1]]] = True
         t0 = time.perf_counter()
@@ -421,12 +404,12 @@ class FaceSystems:
         if x0 is not None:
             start = np.append(np.where(fixed_dofs, 0.0, lay.embed(x0[:-1], self.free_index)), x0[-1])
             initial = np.linalg.norm(r - system.matvec(start)) / norm_r
-        elif self.previous:
+        elif self._kept:
             start, initial = self._galerkin_start(system, r, fixed_dofs)
             initial /= norm_r
         x, its, ok = pcg(system.matvec, system.precondition, r, start, rtol, max_iter)
         if self.recycle:
-            self.previous = (self.previous + [x])[-self.recycle:]
+            self._keep(x)
         t2, c2 = time.perf_counter(), time.process_time()
         reached = float(np.linalg.norm(r - system.matvec(x)) / norm_r)
         if its >= RATE_MIN_ITERATIONS or (rebuild and its):
@@ -442,19 +425,35 @@ class FaceSystems:
         return out, {"amg_setup": rebuild, "cg_iterations": its, "cg_residual": reached,
                      "setup_time": t1 - t0, "solve_time": t2 - t1}
 
+    def _keep(self, x: np.ndarray) -> None:
+        """Keep ``x`` among the last ``recycle`` solutions (overwriting the oldest)."""
+        if self._raw is None or self._raw.shape[0] != x.size:
+            shape = (x.size, self.recycle)
+            self._raw, self._V, self._HV = (np.empty(shape, order="F") for _ in range(3))
+            self._kept = self._slot = 0
+            self._valid = set()
+        self._raw[:, self._slot] = x
+        self._valid.discard(self._slot)
+        self._slot = (self._slot + 1) % self.recycle
+        self._kept = min(self._kept + 1, self.recycle)
+
     def _galerkin_start(self, system: BorderedSystem, r: np.ndarray, fixed_dofs: np.ndarray) -> tuple[np.ndarray, float]:
-        """``x0 = V c`` with ``(V^T H V) c = V^T r`` over the kept solutions, and ``|r - H x0|``.
+        """``x0 = V c`` with ``(V^T H V) c = V^T r`` over the kept solutions (zero on the
+        fixed dofs), and ``|r - H x0|``.
 
         ``H v`` of a kept solution is kept too while the face system is the same
         object (Uzawa's metric and, once the contact set settles, its face do not
         change): one product per solve instead of one per kept solution."""
-        V = np.stack(self.previous, axis=1)
-        V[:-1][fixed_dofs] = 0.0
-        known = self._products.get("system") is system
-        products = [self._products[id(v)][1] if known and id(v) in self._products and self._products[id(v)][0] is v
-                    else system.matvec(col) for v, col in zip(self.previous, V.T)]
-        self._products = {"system": system, **{id(v): (v, hv) for v, hv in zip(self.previous, products)}}
-        HV = np.stack(products, axis=1)
+        if self._for is not system:
+            self._for, self._valid = system, set()
+        k = self._kept
+        for j in range(k):
+            if j not in self._valid:
+                self._V[:, j] = self._raw[:, j]
+                self._V[:-1, j][fixed_dofs] = 0.0
+                self._HV[:, j] = system.matvec(self._V[:, j])
+                self._valid.add(j)
+        V, HV = self._V[:, :k], self._HV[:, :k]
         coef = np.linalg.lstsq(V.T @ HV, V.T @ r, rcond=1e-12)[0]
         return V @ coef, float(np.linalg.norm(r - HV @ coef))
 
@@ -470,11 +469,14 @@ class FaceSystems:
         3.0 -> 2.4 s at 118k tetrahedra, 12.4 -> 9.2 s at 375k (one AMG set-up less,
         about 5 s at 1.03M)."""
         lay = self.lay
-        A = bsr(lay, constrain(lay, self.data, ~lay.free))
+        if self._plain is None or self._plain[0] is not self.data:
+            self._plain = (self.data, bsr(lay, constrain(lay, self.data, ~lay.free, self.transpose)))
+        A = self._plain[1]
         rebuild = self.amg is None
         if rebuild:
             with one_blas_thread():
                 self.amg = AMG(A, self.near_null)
+            self.built_on = self.version
             self.setups += 1
         system = BorderedSystem(A, self.amg)
         b = lay.embed(rhs, self.free_index)
@@ -495,5 +497,7 @@ class FaceSystems:
         return x[self.free_index]
 
     def release(self) -> None:
-        self.amg = self._cached = None
-        self._products = {}
+        self.amg = self._cached = self._plain = self.built_on = None
+        self._raw = self._V = self._HV = self._for = None
+        self._kept = self._slot = 0
+        self._valid = set()

@@ -203,7 +203,7 @@ def alg2_setup(nd, r: float, splitting: str, factorization: str = "auto", length
                inner_rtol: float = 1e-6) -> ALG2Step:
     """Factor ``G_M`` once, or set up its iterative solves (M = I: Uzawa's
     metric G; M = C: the elastic stiffness K); ``length`` is the unit of the
-    scaled ``nd`` (:func:`~elastoplast.linalg.amg.block_layout`)."""
+    scaled ``nd`` (:func:`~elastoplast.linalg.blocks.block_layout`)."""
     M = splitting_metric(nd.material, nd.dim, splitting)
     return ALG2Step(project=metric_projection(nd, length, M, factorization, None, inner_rtol), M=M,
                     M_inv=np.linalg.inv(M), r=r, splitting=splitting)

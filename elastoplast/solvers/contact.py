@@ -241,11 +241,8 @@ class IterativeProjection:
     def __init__(self, nd: Discretization, length: float, M: np.ndarray, weight: float | None = None,
                  rtol: float = 1e-6, reuse: bool = True):
         from elastoplast.fem.assembly import assemble
-        from elastoplast.linalg.amg import (
-            FaceSystems,
-            block_layout,
-            contact_dofs,
-        )
+        from elastoplast.linalg.amg import FaceSystems, contact_dofs
+        from elastoplast.linalg.blocks import block_layout
 
         lay = block_layout(nd, length)
         self.cdofs = contact_dofs(nd)

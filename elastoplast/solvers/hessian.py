@@ -12,12 +12,8 @@ import scipy.sparse as sp
 from elastoplast.fem.assembly import Layout, ScalarView, assemble, scalar_view
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import consistent_tangent
-from elastoplast.linalg.amg import (
-    FaceSystems,
-    block_layout,
-    contact_dofs,
-    pcg,
-)
+from elastoplast.linalg.amg import FaceSystems, contact_dofs, pcg
+from elastoplast.linalg.blocks import block_layout
 from elastoplast.linalg.direct import SPDSolver
 
 

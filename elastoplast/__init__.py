@@ -9,12 +9,14 @@ The data flows mesh -> discretisation -> solver -> certificate -> output::
     print(sol.U, sol.kkt.worst)
 """
 
-from elastoplast.bounds.bracket import Bounds, choose_delta, combine, energy_bounds, u_bracket
+from elastoplast.bounds.bracket import (Bounds, certified_bounds, choose_delta, combine, energy_bounds, lower_bound,
+                                       u_bracket)
 from elastoplast.bounds.upper import UpperBound, hencky_energy_density, penetration_bound, upper_bound
 from elastoplast.certificate.kkt import KKTResiduals, certify
 from elastoplast.solvers.conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
 from elastoplast.fem.discretize import Discretization, discretize
-from elastoplast.bounds.lower import LowerBound, LowerBoundOptions, solve_lower_bound, static_limit_load
+from elastoplast.bounds.lower import (LowerBound, LowerBoundOptions, lower_bound_kind, solve_lower_bound,
+                                     static_limit_load)
 from elastoplast.bounds.static import StaticCertificate, StaticField, certify_static, dual_energy
 from elastoplast.errors import InputError
 from elastoplast.bounds.limit import KinematicBound, LimitBracket, LimitOptions, kinematic_limit_load, limit_load
@@ -42,7 +44,7 @@ __all__ = [
     "shape_quality", "solve", "solve_conic", "solve_conic_cvxpy", "solve_conic_displacement", "solve_newton", "solve_path", "PathResult", "PathStep",
     "solve_uzawa", "structured_mesh", "summary", "von_mises",
     "LowerBound", "LowerBoundOptions", "StaticCertificate", "StaticField", "certify_static", "dual_energy",
-    "solve_lower_bound", "static_limit_load",
+    "solve_lower_bound", "static_limit_load", "lower_bound", "lower_bound_kind", "certified_bounds",
     "Bounds", "UpperBound", "choose_delta", "combine", "energy_bounds", "hencky_energy_density", "penetration_bound",
     "u_bracket", "upper_bound", "KinematicBound", "LimitBracket", "LimitOptions", "kinematic_limit_load", "limit_load",
 ]

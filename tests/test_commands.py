@@ -83,12 +83,23 @@ def test_bounds_refuses_h0_above_the_limit_load_and_writes_nothing(tmp_path, cap
     assert not (tmp_path / "b").exists()
 
 
-def test_bounds_refuses_a_mesh_too_large_for_the_lower_bound(tmp_path, capsys):
+def test_bounds_refuses_a_mesh_too_large_for_the_lower_bound(tmp_path, capsys, monkeypatch):
+    """The global program's size limit (its choice: --lower global); the local bound, which
+    "auto" takes on such a mesh, has none but is refused by its memory estimate."""
+    from elastoplast.limits import MEMORY_ENV
+
     data = small_cylinder()
     data["mesh"]["divisions"] = [400, 200]  # 160,000 triangles > the 2D limit
-    code = main(["bounds", str(write_toml(tmp_path / "p.toml", data)), "--out", str(tmp_path / "b"), "--quiet"])
+    problem = str(write_toml(tmp_path / "p.toml", data))
+    code = main(["bounds", problem, "--lower", "global", "--out", str(tmp_path / "b"), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err[-1].startswith("error: mesh:") and "lower bound" in err[-1], err
+    assert "equilibrium-element" in err[-1] and "limited to 100,000" in err[-1], err
+    assert not (tmp_path / "b").exists()
+    monkeypatch.setenv(MEMORY_ENV, "1G")  # 160,000 x LOCAL_BOUND_BYTES_PER_ELEMENT[2] = 1.9 GB
+    code = main(["bounds", problem, "--out", str(tmp_path / "b"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err[-1].startswith("error: mesh: the local lower bound") and "needs about" in err[-1], err
     assert not (tmp_path / "b").exists()
 
 

@@ -23,41 +23,67 @@ MIN_GROWTH = 1.25
 FIT_STEPS = 10
 
 
-def lower_bound_budget(dim: int, options: AdaptOptions) -> tuple[str, int]:
-    """``(what limits it, elements)``: the largest mesh the lower bound accepts with
-    these options and whose programs, run one after another in this process, fit in
-    the memory available (:func:`~elastoplast.bounds.lower.lower_bound_fits`)."""
+def lower_bound_budget(dim: int, options: AdaptOptions, hardening: bool = True) -> tuple[str, int]:
+    """``(what limits it, elements)``: the largest mesh the lower bound of ``options.lower``
+    accepts and whose lower bounds, run one after another in this process, fit in the
+    memory available (:func:`~elastoplast.bounds.lower.lower_bound_fits`). The global
+    program has its size limit (``lower_max_elements``, else
+    :data:`~elastoplast.bounds.lower.LOWER_BOUND_MAX_ELEMENTS`) and its memory; the local
+    bound only its memory (and ``lower_max_elements`` when given). ``"auto"`` takes the
+    global program up to :data:`~elastoplast.bounds.lower.AUTO_GLOBAL_MAX_ELEMENTS`, so its
+    budget is the local bound's when the global program fits up to there, else the global
+    program's (``hardening`` False: the global program, the only lower bound with H = 0)."""
+    from elastoplast.bounds.lower import AUTO_GLOBAL_MAX_ELEMENTS
+
+    kind = options.lower if hardening else "global"
+    glob = kind_budget(dim, options, "global")
+    if kind == "global" or (kind == "auto" and glob[1] < AUTO_GLOBAL_MAX_ELEMENTS[dim]):
+        return glob
+    return kind_budget(dim, options, "local")
+
+
+def kind_budget(dim: int, options: AdaptOptions, kind: str) -> tuple[str, int]:
+    """:func:`lower_bound_budget` of one kind of lower bound."""
     from elastoplast.bounds.lower import LOWER_BOUND_MAX_ELEMENTS, lower_bound_fits
 
-    largest = options.lower_max_elements or LOWER_BOUND_MAX_ELEMENTS[dim]
-    fits = lower_bound_fits(dim)
+    default = LOWER_BOUND_MAX_ELEMENTS[dim] if kind == "global" else options.max_elements
+    largest = options.lower_max_elements or default
+    fits = lower_bound_fits(dim, kind=kind)
     if fits is not None and fits < largest:
         return "the memory available to the lower bound", max(1, fits)
-    return "the lower bound's size limit", largest
+    return "the lower bound's size limit" if options.lower_max_elements or kind == "global" else "max_elements", largest
 
 
-def lower_bound_limit(dim: int, options: AdaptOptions) -> int:
+def lower_bound_limit(dim: int, options: AdaptOptions, hardening: bool = True) -> int:
     """The elements of :func:`lower_bound_budget`."""
-    return lower_bound_budget(dim, options)[1]
+    return lower_bound_budget(dim, options, hardening)[1]
+
+
+def bracket_seconds(step: Step) -> float:
+    """The predicted cost of the U bracket of a mesh from its row: two more lower bounds and,
+    with the local bound, their two P1 solves (about the row's, the problem and its
+    conservative variant)."""
+    return 2.0 * step.lower_seconds + (step.solve_seconds if step.lower == "local" else 0.0)
 
 
 def cost_model(steps: list[Step], bracket: bool) -> tuple[int, float, float]:
     """``(N_last, cost_last, a)`` of :func:`predicted_seconds`."""
     last = steps[-1]
-    n = np.array([s.n_elements for s in steps[-3:]], dtype=float)
-    cost = np.array([s.solve_seconds + s.lower_seconds for s in steps[-3:]])
+    same = [s for s in steps if s.lower == last.lower][-3:]  # "auto" switches lower bounds once
+    n = np.array([s.n_elements for s in same], dtype=float)
+    cost = np.array([s.solve_seconds + s.lower_seconds for s in same])
     a = 1.5
     if n.size >= 2 and n[-1] > n[0] and np.all(cost > 0):
         a = float(np.clip(np.polyfit(np.log(n), np.log(cost), 1)[0], 1.0, 2.5))
-    return last.n_elements, last.solve_seconds + last.lower_seconds * (3.0 if bracket else 1.0), a
+    return last.n_elements, last.solve_seconds + last.lower_seconds + (bracket_seconds(last) if bracket else 0.0), a
 
 
 def predicted_seconds(steps: list[Step], n_elements: int, bracket: bool) -> float:
     """The predicted cost of bounding a mesh of ``n_elements`` (with its U bracket
-    when ``bracket``: two more lower-bound programs), from the steps so far:
+    when ``bracket``: :func:`bracket_seconds`), from the steps so far:
     ``cost(N) = cost_last (N / N_last)^a``, ``cost_last`` the last step's solves and
     lower bound(s), ``a`` the slope of log(solves + lower bound) in log(N) over the
-    last three steps, kept in [1, 2.5] (the interior point's cost grows like
+    last three steps with the same lower bound as the last, kept in [1, 2.5] (the interior point's cost grows like
     N^1.3-1.5 in 3D, benchmarks/bounds/lower.md; a slope outside that range is
     timing noise), 1.5 after a single step."""
     n_last, cost, a = cost_model(steps, bracket)

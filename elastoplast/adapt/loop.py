@@ -1,7 +1,7 @@
 """Adaptive refinement driven by the certified gap.
 
 The gap between the upper bound Π(v, V) of the P1 solution and the lower bound
-−J of the equilibrium element (docs/bounds.md) is a sum of element and
+−J (docs/bounds.md) is a sum of element and
 contact-facet terms, each ≥ 0: a proof in total and an error indicator in its
 parts. The loop
 
@@ -9,8 +9,18 @@ parts. The loop
 
 runs until the relative gap ``(upper − lower) / |upper|`` is at most ``rtol``, or
 a budget is spent: ``max_iter`` meshes, ``max_elements`` (and the lower bound's
-own size limit, :data:`~elastoplast.bounds.lower.LOWER_BOUND_MAX_ELEMENTS`), or
-``time_limit``. Marking uses the element gaps, each contact facet's gap added
+own limits, :func:`~elastoplast.adapt.budget.lower_bound_budget`), or ``time_limit``.
+
+The lower bound of each mesh is :func:`~elastoplast.bounds.bracket.lower_bound`'s, of the
+kind ``options.lower`` asks for: by default (``"auto"``) the global program (the optimum
+of the equilibrium element) on meshes up to
+:data:`~elastoplast.bounds.lower.AUTO_GLOBAL_MAX_ELEMENTS` (8,000 triangles, 15,000
+tetrahedra), the local field built from the P1 solution above, whose cost grows like the
+solve's; the global program's size limit
+(:data:`~elastoplast.bounds.lower.LOWER_BOUND_MAX_ELEMENTS`, 25,000 tetrahedra) and memory
+model then no longer stop the loop. Where the local bound is used, the P1 solves are
+certified to :data:`~elastoplast.bounds.bracket.LOCAL_SOLVE_TOL` (its contact layer needs
+the nodal balance to round-off). Marking uses the element gaps, each contact facet's gap added
 to the element it bounds (:func:`~elastoplast.bounds.upper.element_indicators`);
 refinement is conforming bisection (:func:`~elastoplast.mesh.refinement.refine`),
 which keeps the facet groups, so the contact zone and the symmetry planes stay
@@ -32,10 +42,12 @@ previous mesh's solution interpolated onto the new nodes
 (:func:`~elastoplast.mesh.refinement.prolong_p1`), for the problem and for its
 conservative variant (:func:`~elastoplast.bounds.upper.conservative_discretization`,
 whose solution usually gives the smaller upper bound). The U bracket
-(:func:`~elastoplast.bounds.upper.u_bracket`) costs two more lower-bound programs, at
-``F ∓ δ``: by default (``bracket = "final"``) it is computed on the last mesh
+(:func:`~elastoplast.bounds.bracket.u_bracket_of`) costs two more lower bounds, at
+``F ∓ δ`` (with the local bound, each after a P1 solve warm-started from the solution at
+F): by default (``bracket = "final"``) it is computed on the last mesh
 only, whatever stopped the loop (the time budget reserves for it), unless what is left of
-the time limit is less than its predicted cost (twice the last lower bound's time: the
+the time limit is less than its predicted cost (:func:`~elastoplast.adapt.budget.bracket_seconds`:
+twice the last lower bound's time, plus the solves for the local bound: the
 first mesh, always bounded, can overrun a small budget). For
 comparison, :func:`uniform` runs the same pipeline refining every element.
 
@@ -59,6 +71,7 @@ import numpy as np
 from elastoplast.adapt.budget import (
     MIN_GROWTH,
     affordable_elements,
+    bracket_seconds,
     lower_bound_budget,
     next_mesh,
 )
@@ -115,46 +128,63 @@ def _solve(disc: Discretization, options: AdaptOptions, start: Solution | None, 
 def _lower_options(options: AdaptOptions):
     from elastoplast.bounds.lower import LowerBoundOptions
 
-    return LowerBoundOptions(max_elements=options.lower_max_elements)
+    return LowerBoundOptions(max_elements=options.lower_max_elements, kind=options.lower)
+
+
+def _solve_tol(disc: Discretization, options: AdaptOptions) -> float:
+    """The P1 tolerance on ``disc``: ``options.tol``, at most the local lower bound's
+    (:data:`~elastoplast.bounds.bracket.LOCAL_SOLVE_TOL`) where that bound is used."""
+    from elastoplast.bounds.bracket import LOCAL_SOLVE_TOL
+    from elastoplast.bounds.lower import lower_bound_kind
+
+    local = lower_bound_kind(disc, _lower_options(options)) == "local"
+    return min(options.tol, LOCAL_SOLVE_TOL) if local else options.tol
 
 
 def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solution, Solution | None] | None,
            bracket: bool) -> _Bounded:
     """Solve and bound one mesh (the upper bound of :func:`~elastoplast.bounds.upper.best_upper_bound`
     with warm-started solves, the lower bound, their local gaps)."""
-    from elastoplast.bounds.bracket import combine
-    from elastoplast.bounds.lower import solve_lower_bound
+    from elastoplast.bounds.bracket import combine, lower_bound, lower_kind
     from elastoplast.bounds.upper import smallest_upper_bound
 
     t0 = time.perf_counter()
     disc = discretize(problem)
-    sol = _solve(disc, options, None if start is None else start[0])
+    tol = _solve_tol(disc, options)
+    solve_options = replace(options, tol=tol)
+    sol = _solve(disc, solve_options, None if start is None else start[0])
     cons = None
     cdisc = conservative_discretization(disc)
     if not np.array_equal(cdisc.psi, disc.psi):  # a flat obstacle needs no allowance: nothing to solve again
         # only a candidate: if its solve fails, the problem's own solution bounds alone
-        cons = _solve(cdisc, options, None if start is None else start[1], required=False)
+        cons = _solve(cdisc, solve_options, None if start is None else start[1], required=False)
     upper = smallest_upper_bound(disc, sol, cons)  # as bounds.best_upper_bound, with warm-started solves
     t1 = time.perf_counter()
-    lower = solve_lower_bound(disc, _lower_options(options))
+    lower_options = _lower_options(options)
+    if tol < options.tol:  # the local bound: from a solution to its tolerance (conic's polish may fall short)
+        from elastoplast.bounds.bracket import local_solution
+
+        sol = local_solution(disc, sol, options.method)
+    lower = lower_bound(disc, sol, lower_options)
     t2 = time.perf_counter()
     b = combine(upper, lower)
     row = Step(step=step, n_elements=disc.n_elements, n_nodes=disc.mesh.n_nodes, energy_lower=b.energy_lower,
                energy_upper=b.energy_upper, gap_rel=b.energy_gap_rel, certified=b.bounds_certified, U=sol.U,
                U_lower=math.nan, U_upper=math.nan, seconds=t2 - t0, solve_seconds=t1 - t0, lower_seconds=t2 - t1,
-               iterations=sol.iterations)
+               iterations=sol.iterations, lower=lower_kind(lower))
     done = _Bounded(row=row, disc=disc, solution=sol, conservative=cons, bounds=b)
     return with_bracket(done, options) if bracket else done
 
 
 def with_bracket(done: _Bounded, options: AdaptOptions) -> _Bounded:
-    """``done`` with its U bracket (:func:`~elastoplast.bounds.upper.u_bracket_of`: two more
-    lower bounds, at ``F ∓ δ``, and no P1 solve, as the ``bounds`` command does)."""
+    """``done`` with its U bracket (:func:`~elastoplast.bounds.bracket.u_bracket_of`: two more
+    lower bounds, at ``F ∓ δ``, as the ``bounds`` command does: no P1 solve for the global
+    program, two warm-started ones by ``options.method`` for the local bound)."""
     from elastoplast.bounds.bracket import u_bracket_of
 
     t0 = time.perf_counter()
     disc, sol, b = done.disc, done.solution, done.bounds
-    lo, hi, _, certified = u_bracket_of(disc, b, sol.U, _lower_options(options))
+    lo, hi, _, certified = u_bracket_of(disc, b, sol.U, _lower_options(options), solution=sol, method=options.method)
     seconds = time.perf_counter() - t0
     row = replace(done.row, U_lower=lo, U_upper=hi, certified=done.row.certified and certified,
                   bracket_seconds=seconds, seconds=done.row.seconds + seconds)
@@ -212,10 +242,10 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
     mesh, state, start = problem.mesh, None, None
     steps: list[Step] = []
     meshes: list[Mesh] = []
-    lower_name, lower_limit = lower_bound_budget(problem.dim, options)
+    lower_name, lower_limit = lower_bound_budget(problem.dim, options, problem.material.hardening > 0)
     if mesh.n_elements > lower_limit:  # before any work (the next meshes are planned under it)
         raise InputError("mesh", f"{mesh.n_elements:,} elements: above {lower_name} ({lower_limit:,} elements for "
-                                 "its programs in a row); start from a coarser mesh")
+                                 "its lower bounds in a row); start from a coarser mesh")
     final_bracket = options.bracket == "final"
     reason = f"max_iter = {options.max_iter} meshes solved"
     for k in range(options.max_iter):
@@ -260,9 +290,9 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
         if stop is not None:
             # the bracket is two more lower bounds, each about as long as this mesh's: not past the limit
             left = math.inf if options.time_limit is None else options.time_limit - (time.perf_counter() - t_start)
-            if final_bracket and math.isnan(row.U_lower) and 2.0 * row.lower_seconds > left:
+            if final_bracket and math.isnan(row.U_lower) and bracket_seconds(row) > left:
                 stop += (f"; no U bracket: the time limit is spent" if left <= 0 else
-                         f"; no U bracket: it would take about {2.0 * row.lower_seconds:.0f} s, {left:.0f} s left")
+                         f"; no U bracket: it would take about {bracket_seconds(row):.0f} s, {left:.0f} s left")
             elif final_bracket and math.isnan(row.U_lower):
                 done = with_bracket(done, options)
             row = replace(done.row, seconds=time.perf_counter() - t0)

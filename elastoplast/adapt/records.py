@@ -22,9 +22,12 @@ class AdaptOptions(SolverOptions):
     each mesh's discrete solution is certified to (the bounds need the discrete
     solution only as a candidate, but an accurate one keeps the upper bound
     tight). ``max_iter`` bounds the number of meshes (``max_steps``).
-    ``lower_max_elements``: the lower bound's size limit (None: its default,
-    :data:`~elastoplast.bounds.lower.LOWER_BOUND_MAX_ELEMENTS`); the loop never
-    builds a mesh above it or above ``max_elements``.
+    ``lower``: which lower bound bounds each mesh (:attr:`~elastoplast.bounds.lower.LowerBoundOptions.kind`:
+    with ``"auto"`` the global program on meshes up to
+    :data:`~elastoplast.bounds.lower.AUTO_GLOBAL_MAX_ELEMENTS`, the local bound above).
+    ``lower_max_elements``: the lower bound's size limit (None: the global program's
+    :data:`~elastoplast.bounds.lower.LOWER_BOUND_MAX_ELEMENTS`, none for the local bound
+    but its memory); the loop never builds a mesh above it or above ``max_elements``.
     """
 
     max_iter: int = option(30, int, "most meshes solved (adaptive steps)", lo=1, hi=200)
@@ -41,6 +44,8 @@ class AdaptOptions(SolverOptions):
     warm_start: bool = option(True, bool, "Newton from the previous mesh's solution, interpolated", persist=False)
     lower_max_elements: int | None = option(None, int, "the lower bound's size limit (none: its default)", lo=1,
                                             hi=100_000_000, none=True)
+    lower: str = option("auto", str, "the lower bound: the global program, the local field, or auto (by mesh size)",
+                        choices=("auto", "local", "global"))
 
 
 @dataclass(frozen=True)
@@ -49,8 +54,9 @@ class Step:
 
     ``seconds`` is the whole step (solves, bounds, bracket, marking and
     refinement); ``solve_seconds`` the P1 solves (the problem and its
-    conservative variant), ``lower_seconds`` the lower-bound program at F,
-    ``bracket_seconds`` the two at ``F ∓ δ``; ``iterations`` the solver
+    conservative variant), ``lower_seconds`` the lower bound at F (``lower``: which
+    one, ``"global"`` or ``"local"``), ``bracket_seconds`` the two at ``F ∓ δ`` (with the
+    local bound, their P1 solves too); ``iterations`` the solver
     iterations of the P1 solve of the problem; ``theta`` the Dörfler parameter
     the marking used (lowered to fit a budget), ``marked`` the elements it marked.
     """
@@ -72,6 +78,8 @@ class Step:
     bracket_seconds: float = 0.0
     iterations: int = 0
     theta: float = math.nan
+    #: the lower bound used: "global" (the equilibrium-element program) or "local"
+    lower: str = "global"
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -80,7 +88,8 @@ class Step:
         bracket = "" if math.isnan(self.U_lower) else f"  U in [{self.U_lower:.6g}, {self.U_upper:.6g}]"
         flag = "" if self.certified else "  (NOT certified)"
         return (f"step {self.step:2d}  {self.n_elements:9,d} elements  lower {self.energy_lower:.8g}  "
-                f"upper {self.energy_upper:.8g}  gap {self.gap_rel:.3e}{bracket}  {self.seconds:.1f} s{flag}")
+                f"upper {self.energy_upper:.8g}  gap {self.gap_rel:.3e}{bracket}  {self.seconds:.1f} s  "
+                f"({self.lower} lower bound){flag}")
 
 
 @dataclass(frozen=True)

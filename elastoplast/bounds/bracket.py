@@ -122,8 +122,8 @@ def bracket_holds(lower: float, upper: float) -> bool:
 def energy_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
                   lower_options=None, **options) -> Bounds:
     """``-J <= Pi* <= Pi`` on ``disc``: :func:`best_upper_bound` of ``solution``
-    (solved by ``method`` when not given) and the lower bound of
-    :func:`elastoplast.bounds.lower.solve_lower_bound`."""
+    (solved by ``method`` when not given) and the lower bound of :func:`lower_bound`
+    (``lower_options.kind``)."""
     return certified_bounds(disc, solution, method, conservative, lower_options, bracket=False, **options).bounds
 
 
@@ -200,6 +200,11 @@ def displacement_slope(disc: Discretization, method: str = "conic", step: float 
     return float((U[1] - U[0]) / (2.0 * step * F))
 
 
+def lower_kind(lower) -> str:
+    """``"local"`` or ``"global"``: which lower bound ``lower`` is (its ``solver``)."""
+    return "local" if getattr(lower, "solver", "") == "local" else "global"
+
+
 @dataclass(frozen=True)
 class BoundsReport:
     """The energy bracket of one problem (:class:`Bounds`), the U bracket from the
@@ -232,30 +237,171 @@ class BoundsReport:
             "U_bracket_delta_above": self.delta[1],
             "upper_bound": {"penetration": self.upper.penetration, "shift": self.upper.shift, "lift": self.upper.lift,
                             "certified": self.upper.certified, "message": self.upper.message},
-            "lower_bound": {"certified": self.lower.certified, "status": self.lower.status.value,
+            "lower_bound_kind": lower_kind(self.lower),
+            "lower_bound": {"kind": lower_kind(self.lower), "solver": self.lower.solver,
+                            "certified": self.lower.certified, "status": self.lower.status.value,
                             "message": self.lower.message, "certificate_worst": self.lower.certificate.worst,
                             "iterations": self.lower.iterations},
             "bounds_timings": self.timings,
         }
 
 
+#: ``progress(fraction, what)``: how far a lower bound (or a U bracket) is, ``fraction`` in [0, 1]
+Progress = Callable[[float, str], None]
+
+
+def check_progress(progress) -> None:
+    if progress is not None and not callable(progress):
+        raise InputError("progress", f"expected a function progress(fraction, what) or None, got "
+                                     f"{type(progress).__name__}")
+
+
+def scaled_progress(progress: Progress | None, start: float, end: float) -> Progress | None:
+    """``progress`` for a part of the work that spans ``[start, end]`` of the whole."""
+    if progress is None:
+        return None
+
+    def report(fraction: float, what: str) -> None:
+        progress(start + (end - start) * min(max(float(fraction), 0.0), 1.0), what)
+
+    return report
+
+
+def check_lower_bound_fits(disc: Discretization, options=None, factor: float = 1.0) -> str:
+    """Refuse, before any work, a mesh the chosen lower bound
+    (:func:`~elastoplast.bounds.lower.lower_bound_kind`) cannot finish: the global program by
+    :func:`~elastoplast.bounds.lower.check_lower_bound_size` (its size limit and memory,
+    ``factor`` for several in a row), the local bound when its estimate
+    (:func:`~elastoplast.bounds.lower.lower_bound_bytes`, with its solve) exceeds the memory
+    available. Returns the kind, ``"global"`` or ``"local"``."""
+    from elastoplast.bounds.lower import LowerBoundOptions, check_lower_bound_size, lower_bound_bytes, lower_bound_kind
+    from elastoplast.limits import check_memory
+
+    options = LowerBoundOptions.of(options, "lower_options")
+    kind = lower_bound_kind(disc, options)
+    if kind == "global":
+        check_lower_bound_size(disc, options, factor=factor)
+    else:
+        check_memory(lower_bound_bytes(disc.dim, disc.n_elements, kind), "mesh",
+                     f"the local lower bound ({disc.n_elements:,} elements, with its P1 solve)", "coarsen the mesh")
+    return kind
+
+
+def lower_bound(disc: Discretization, solution=None, options=None, *, progress: Progress | None = None):
+    """The certified lower bound ``-J <= Pi*`` on ``disc`` that ``options.kind`` chooses
+    (:class:`~elastoplast.bounds.lower.LowerBoundOptions`, or a mapping of them;
+    :func:`~elastoplast.bounds.lower.lower_bound_kind`): the optimum of the equilibrium
+    element (:func:`~elastoplast.bounds.lower.solve_lower_bound`; ``solution`` unused), or the
+    local field built from ``solution``, a P1 solution of ``disc``
+    (:func:`~elastoplast.bounds.local.local_lower_bound`; H > 0). Either is a
+    :class:`~elastoplast.bounds.lower.LowerBound`; its ``solver`` is ``"local"`` for the local
+    bound. ``progress(fraction, what)`` is called as the bound advances."""
+    import elastoplast.bounds.lower as global_bound
+    from elastoplast.certificate.solution import Solution
+
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    options = global_bound.LowerBoundOptions.of(options, "lower_options")
+    check_progress(progress)
+    kind = global_bound.lower_bound_kind(disc, options)
+    if kind == "global":
+        if progress is not None:
+            progress(0.0, f"lower bound: global program ({disc.n_elements:,} elements)")
+        lower = global_bound.solve_lower_bound(disc, options)
+    else:
+        if solution is None:
+            raise InputError("solution", "the local lower bound is built from a P1 solution of disc: give one "
+                                         "(ep.solve(disc, 'newton')), or choose the global program (kind 'global')")
+        expect(solution, Solution, "solution", "ep.solve(disc, method)")
+        if progress is not None:
+            progress(0.0, f"lower bound: local field ({disc.n_elements:,} elements)")
+        from elastoplast.bounds.local import local_lower_bound
+
+        lower = local_lower_bound(disc, solution, progress=progress)
+    if progress is not None:
+        progress(1.0, "lower bound done")
+    return lower
+
+
+def bracket_method(solution) -> str:
+    """The method of the P1 solves at ``F -/+ delta``: the solution's own when it is a
+    built-in method, else newton."""
+    from elastoplast.solvers.registry import METHODS
+
+    return solution.method if getattr(solution, "method", None) in METHODS else "newton"
+
+
+#: the KKT tolerance of the P1 solutions the local lower bound is built from: its contact
+#: layer needs the nodal balance to 1e-13 of the contact force (``contact_layer.LAYER_TOL``),
+#: about a tenth of the solution's KKT residual. Measured on the cylinder (576 triangles):
+#: newton at tol 1e-8 (residual 1.2e-10) and a warm start at 1e-10 refused, at 1e-12
+#: (3.7e-15) certified; conic polishes to 5.8e-15 at any tol, uzawa at 1e-12 reaches 7.7e-13.
+LOCAL_SOLVE_TOL = 1e-12
+
+
+def solve_at(disc: Discretization, force: float, method: str, start=None, tol: float | None = None, **options):
+    """The P1 solution of ``disc`` at ``force`` by ``method`` (solver options as for
+    :func:`~elastoplast.solvers.registry.solve`: an options object as ``options=`` or
+    keywords; ``tol``: at most this KKT tolerance), from ``start`` (a solution of ``disc``,
+    its contact forces scaled to ``force``) where the method takes a start
+    (:data:`~elastoplast.solvers.path.WARM_STARTS`); cold again if that does not converge."""
+    from dataclasses import replace
+
+    from elastoplast.solvers.path import WARM_STARTS
+    from elastoplast.solvers.registry import check_solvable, get_method, given_options, solve
+
+    at = disc.with_force(force)
+    m = get_method(method)
+    values = dict(options)
+    opts = given_options(method, values.pop("options", None), values)
+    if tol is not None and opts.tol > tol:
+        opts = replace(opts, tol=tol)
+    opts = replace(opts, progress=False)  # within the caller's progress (the lower bounds')
+    takes = WARM_STARTS.get(m.name) if start is not None else None
+    if takes is None:
+        return solve(at, method, opts)
+    check_solvable(at, m.name, opts)
+    start = replace(start, contact_force=np.asarray(start.contact_force) * (force / disc.force))
+    if takes == "warm_start":  # newton's argument
+        from elastoplast.solvers.newton import solve_newton
+
+        sol = solve_newton(at, opts, warm_start=start)
+    else:
+        sol = m.run(at, replace(opts, **{takes: start}))
+    return sol if sol.converged else solve(at, method, opts)
+
+
+def local_solution(disc: Discretization, solution, method: str | None = None, **options):
+    """``solution`` if it is accurate enough for the local lower bound (its KKT residual at
+    most :data:`LOCAL_SOLVE_TOL`), else the solution of ``disc`` solved again to that
+    tolerance from it (:func:`solve_at`; ``method``: :func:`bracket_method` by default)."""
+    if solution.converged and solution.kkt.worst <= LOCAL_SOLVE_TOL:
+        return solution
+    again = solve_at(disc, disc.force, method or bracket_method(solution), solution, LOCAL_SOLVE_TOL, **options)
+    return again if again.kkt.worst <= solution.kkt.worst or not solution.converged else solution
+
+
 def certified_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
-                     lower_options=None, *, bracket: bool = True, **options) -> BoundsReport:
+                     lower_options=None, *, bracket: bool = True, progress: Progress | None = None,
+                     **options) -> BoundsReport:
     """The energy bracket of ``disc`` and, with ``bracket``, the U bracket.
 
-    U bracket (:func:`u_bracket`): only the lower bounds are needed at ``F -/+
-    delta`` (``U >= (lo(F - delta) - hi(F)) / delta``, ``U <= (hi(F) - lo(F + delta'))
-    / delta'``), so two more equilibrium-element programs and no P1 solve; delta is
-    :func:`choose_delta` with the secant ``U / F`` for ``dU/dF`` (delta only sets
-    how tight the bracket is, never whether it holds). The two inequalities hold
-    for any delta each: with H = 0 and F + delta above the mesh's static limit
-    load, ``delta'`` is divided by 4 until the equilibrium element carries the
-    load (at most :data:`BRACKET_RETRIES` times; else ``U_upper = inf``, and the
-    bracket is not called certified).
+    The lower bound is :func:`lower_bound`'s (``lower_options.kind``: the global program,
+    or the local field built from the P1 solution). U bracket (:func:`u_bracket`): only
+    the lower bounds are needed at ``F -/+ delta`` (``U >= (lo(F - delta) - hi(F)) /
+    delta``, ``U <= (hi(F) - lo(F + delta')) / delta'``): two more equilibrium-element
+    programs and no P1 solve, or, with the local bound, two more P1 solves (``method``,
+    warm-started from the solution at F, :func:`solve_at`) and their local bounds; delta
+    is :func:`choose_delta` with the secant ``U / F`` for ``dU/dF`` (delta only sets how
+    tight the bracket is, never whether it holds). The two inequalities hold for any
+    delta each: with H = 0 and F + delta above the mesh's static limit load, ``delta'``
+    is divided by 4 until the equilibrium element carries the load (at most
+    :data:`BRACKET_RETRIES` times; else ``U_upper = inf``, and the bracket is not called
+    certified). ``progress(fraction, what)``, when given, is called as the lower bounds
+    advance (the local bound reports within itself).
     """
     import time
 
-    from elastoplast.bounds.lower import LowerBoundOptions, solve_lower_bound
+    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_kind
     from elastoplast.solvers.registry import solve
 
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
@@ -263,39 +409,74 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
     if solution is not None:
         check_solution(disc, solution, "solution", reads=("u",))
     lower_options = LowerBoundOptions.of(lower_options, "lower_options")
+    check_progress(progress)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     sol = solve(disc, method, **options) if solution is None else solution
     upper = best_upper_bound(disc, sol, method, conservative, **options)
     t1 = time.perf_counter()
-    lower = solve_lower_bound(disc, lower_options)
+    local = lower_bound_kind(disc, lower_options) == "local"
+    part = scaled_progress(progress, 0.0, 1.0 / 3 if bracket else 1.0)
+    if local:  # the local field is built from a solution accurate to LOCAL_SOLVE_TOL
+        if part is not None and not (sol.converged and sol.kkt.worst <= LOCAL_SOLVE_TOL):
+            part(0.0, f"P1 solution to tol {LOCAL_SOLVE_TOL:g} for the local bound")
+        sol = local_solution(disc, sol, method, **options)
+    lower = lower_bound(disc, sol, lower_options, progress=part)
     t2 = time.perf_counter()
     timings.update(upper=t1 - t0, lower=t2 - t1)
     b = combine(upper, lower)
     if not bracket:
         return BoundsReport(bounds=b, upper=upper, lower=lower, timings=timings)
-    U_lo, U_hi, delta, ok = u_bracket_of(disc, b, sol.U, lower_options)  # delta: (below F, above F)
+    U_lo, U_hi, delta, ok = u_bracket_of(disc, b, sol.U, lower_options, solution=sol, method=method,
+                                         progress=scaled_progress(progress, 1.0 / 3, 1.0), **options)
     timings["bracket"] = time.perf_counter() - t2
     return BoundsReport(bounds=b, upper=upper, lower=lower, U_lower=U_lo, U_upper=U_hi, delta=delta, timings=timings,
                         bracket_certified=ok)
 
 
-def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
-                 lower_options=None) -> tuple[float, float, tuple[float, float], bool]:
+def u_bracket_of(disc: Discretization, b: Bounds, U_h: float, lower_options=None, *, solution=None,
+                 method: str | None = None, progress: Progress | None = None,
+                 **options) -> tuple[float, float, tuple[float, float], bool]:
     """``(U_lower, U_upper, (delta, delta'), certified)``: the U bracket of :func:`u_bracket` from
-    the energy bracket ``b`` at F and two more lower bounds, at ``F - delta`` and
-    ``F + delta'`` (no P1 solve); see :func:`certified_bounds` for the choice of
-    delta and the shrinking of ``delta'``."""
-    from elastoplast.bounds.lower import LowerBoundOptions, solve_lower_bound
+    the energy bracket ``b`` at F and two more lower bounds (:func:`lower_bound`), at ``F -
+    delta`` and ``F + delta'``; see :func:`certified_bounds` for the choice of delta and the
+    shrinking of ``delta'``. The global program needs no P1 solve; the local bound
+    (``lower_options.kind``) needs ``solution``, the P1 solution at F, from which the
+    solutions at ``F -/+ delta`` are computed by ``method`` (default: the solution's own
+    where it is a built-in method, else newton) with the solver ``options``."""
+    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_kind
 
     lower_options = LowerBoundOptions.of(lower_options, "lower_options")
+    check_progress(progress)
     F = disc.force
     # the gap used to choose delta never counts as less than the round-off of the bounds
     # themselves, so that (round-off of J) / delta stays far below the bracket's width
     gap = max(b.energy_gap, GAP_FLOOR * abs(b.energy_upper))
     delta = choose_delta(F, gap, U_h / F if U_h > 0 else 0.0)
+    local = lower_bound_kind(disc, lower_options) == "local"
+    if local:
+        if solution is None:
+            raise InputError("solution", "the U bracket with the local lower bound needs the P1 solution at F (the "
+                                         "start of the solves at F -/+ delta), or the global program (kind 'global')")
+        check_solution(disc, solution, "solution", reads=("u", "sigma", "contact_force"))
+        method = method or bracket_method(solution)
+
+    def bound_at(force: float, part: int):
+        """The lower bound at ``force`` (its share ``part`` of ``progress``)."""
+        report = scaled_progress(progress, part / 2, (part + 1) / 2)
+        if not local:
+            return lower_bound(disc.with_force(force), None, lower_options, progress=report)
+        if report is not None:
+            report(0.0, f"P1 solve at F = {force:.6g}")
+        sol = solve_at(disc, force, method, solution, LOCAL_SOLVE_TOL, **options)
+        try:
+            return lower_bound(disc.with_force(force), sol, lower_options, progress=report)
+        except InputError as exc:  # the local field could not be built from this solution: no bracket
+            raise InputError("mesh", f"the local lower bound at F = {force:.6g} (P1 solution: "
+                                     f"{sol.status.value}, KKT residual {sol.kkt.worst:.1e}): {exc}") from None
+
     try:
-        minus = solve_lower_bound(disc.with_force(F - delta), lower_options)
+        minus = bound_at(F - delta, 0)
     except InputError as exc:  # memory taken since the first program was checked: no bracket, said so
         if exc.field != "mesh":
             raise
@@ -306,7 +487,7 @@ def u_bracket_of(disc: Discretization, b: Bounds, U_h: float,
     plus, delta_plus = None, delta
     for _ in range(BRACKET_RETRIES):
         try:
-            plus = solve_lower_bound(disc.with_force(F + delta_plus), lower_options)
+            plus = bound_at(F + delta_plus, 1)
             break
         except InputError as exc:
             if exc.field == "mesh":

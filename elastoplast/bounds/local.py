@@ -8,11 +8,11 @@ built here is exactly admissible and costs a few batched passes over the mesh:
    non-negative linear contact pressure (:mod:`elastoplast.bounds.contact_layer`);
 2. equilibrated facet tractions, vertex star by vertex star (:mod:`elastoplast.bounds.equilibrate`);
 3. their exact lift into each element on its barycentric split (:mod:`elastoplast.bounds.lift`);
-4. optionally, sweeps of patch-local complementary-energy minimisation
-   (:mod:`elastoplast.bounds.sweeps`), each keeping the field admissible, then
-   :data:`HOT_ROUNDS` rounds of sweeps over the hot stars only (:func:`hot_nodes`: where
-   the start's concentrated error is), then the round-off repair of the elements'
-   balance (:func:`~elastoplast.bounds.sweeps.repair_balance`);
+4. optionally, sweeps of ring-local complementary-energy minimisation (edge patches in
+   3D, vertex stars in 2D: :mod:`elastoplast.bounds.rings`, :mod:`elastoplast.bounds.edges`),
+   each keeping the field admissible and moving the contact pressure too (``lam >= 0``
+   and ``int lam = F`` kept), then the round-off repair of the elements' balance, ring by
+   ring (:func:`~elastoplast.bounds.edges.ring_repair`; nothing global is factored);
 5. in plane strain ``tau33 = nu (tau11 + tau22) + offset`` (:func:`out_of_plane_offset`),
    then moved towards each sub-element's minimiser of J (:func:`optimal_tau33`; no
    equilibrium row involves it), ``eta`` at every sub-element vertex as above; the field lives on the split mesh,
@@ -72,7 +72,7 @@ class LocalField:
     (a :class:`StaticField` of ``split.disc``), ``star_residual`` the largest relative row
     residual of the star systems, ``imbalance`` the largest element imbalance of the
     tractions before and after the round-off repair (relative, :func:`~elastoplast.bounds.sweeps.element_imbalance`;
-    zeros without sweeps) and whether the whole-mesh projection was needed, ``timings``."""
+    zeros without sweeps) and False (no whole-mesh projection: kept for the callers), ``timings``."""
 
     split: SplitDiscretization
     field: StaticField
@@ -82,7 +82,7 @@ class LocalField:
 
 
 def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: np.ndarray,
-                       n_sweeps: int = 0) -> LocalField:
+                       n_sweeps: int = 0, progress=None) -> LocalField:
     """Steps 1-3 and 5 of the module docstring from the discrete stresses ``sigma (n, k)``
     in nodal balance with the contact forces ``contact_force`` (per contact node)."""
     t0 = time.perf_counter()
@@ -111,31 +111,42 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     t = facet_tractions(faces, sol.moments)
     timings["equilibrate"] = time.perf_counter() - t1
     repair = (0.0, 0.0, False)
+    report = progress if progress is not None else (lambda fraction, what: None)
+    report(0.1, "equilibrated tractions")
     if n_sweeps > 0:
-        from elastoplast.bounds.sweeps import node_colours, repair_balance, star_batches, sweep, sweep_free
+        from elastoplast.bounds.edges import ring_repair, ring_sweep
+        from elastoplast.bounds.rings import mesh_rings, ring_batches
+        from elastoplast.bounds.sweeps import REPAIR_PASSES, REPAIR_TOL
 
         t1 = time.perf_counter()
-        frozen = np.zeros(faces.nodes.shape[0], dtype=bool)
-        frozen[cf] = True
-        colours = node_colours(mesh.cells, mesh.n_nodes)
-        free = sweep_free(faces, frozen)
-        batches = star_batches(mesh.points, mesh.cells, maps, faces, colours, free)
-        timings["stars"] = time.perf_counter() - t1
+        free = faces.unknown.copy()
+        free[cf, d - 1] = True  # the contact pressure moves with the rings (kept >= 0, int lam = F kept)
+        psi_face = np.zeros((faces.nodes.shape[0], d))
+        psi_face[cf] = psi_weights(disc, topo).q
+        t[cf, :, d - 1] = lam  # exactly the pressure (>= 0) the moments came from, not its round-off image
+        rings = mesh_rings(mesh.points, mesh.cells)
+        batches = ring_batches(mesh.points, mesh.cells, grads, faces, rings, free)
+        timings["rings"] = time.perf_counter() - t1
+        report(0.15, "patches")
         t1 = time.perf_counter()
         offset = out_of_plane_offset(disc, sigma)
-        t = sweep(mesh.points, mesh.cells, maps, faces, t, disc.volumes, m, colours, frozen, n_sweeps, offset, batches)
+
+        def swept(i):
+            report(0.15 + 0.75 * i / n_sweeps, f"sweep {i} of at most {n_sweeps}")
+
+        on_contact = np.zeros(faces.nodes.shape[0], dtype=bool)
+        on_contact[cf] = True
+        t = ring_sweep(mesh.points, mesh.cells, maps, faces, rings, t, disc.volumes, m, batches, n_sweeps, offset, swept,
+                       psi_face, on_contact)
         timings["sweeps"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        for _ in range(HOT_ROUNDS):  # extra sweeps where the field's energy still far exceeds the discrete stress's
-            hot = hot_nodes(disc, maps, faces, t, sigma, offset)
-            if not hot.any():
-                break
-            hb = star_batches(mesh.points, mesh.cells, maps, faces, np.where(hot, colours, -1), free)
-            t = sweep(mesh.points, mesh.cells, maps, faces, t, disc.volumes, m, colours, frozen, HOT_SWEEPS, offset, hb)
-        timings["hot sweeps"] = time.perf_counter() - t1
-        t1 = time.perf_counter()
-        t, *repair = repair_balance(mesh.points, mesh.cells, maps, faces, t, batches, free)
+        # the repair leaves the pressure alone (lam >= 0 stays exact): interior and prescribed-free components only
+        t, before, after = ring_repair(mesh.points, mesh.cells, maps, faces, t, batches, faces.unknown, REPAIR_TOL,
+                                       REPAIR_PASSES)
+        repair = (before, after, False)
+        lam = t[cf, :, d - 1].copy()
         timings["repair"] = time.perf_counter() - t1
+        report(0.9, "repaired")
     te = element_tractions(faces, t)
     t1 = time.perf_counter()
     sig = lift(maps, te)  # (n, d+1, d+1, d, d)
@@ -150,13 +161,6 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     return LocalField(split, field, sol.residual, timings, tuple(repair))
 
 
-#: rounds of extra sweeps on the hot stars after the full sweeps, and sweeps per round
-HOT_ROUNDS = 3
-HOT_SWEEPS = 8
-#: the hot elements carry this share of the field's energy in excess of the discrete stress's
-HOT_SHARE = 0.9
-
-
 def element_energies(disc: Discretization, tau: np.ndarray) -> np.ndarray:
     """``(n,)``: J's element terms of sub-vertex stresses ``tau (n, d+1, d+1, k)``, ``eta`` the vertex max."""
     from elastoplast.bounds.sweeps import element_energy
@@ -164,26 +168,6 @@ def element_energies(disc: Discretization, tau: np.ndarray) -> np.ndarray:
     d, m = disc.dim, disc.material
     M = mass_matrix(d)
     return element_energy(tau, disc.volumes / (d + 1), np.kron(M, m.compliance(d)), M, m.yield_stress, m.hardening)
-
-
-def hot_nodes(disc: Discretization, maps, faces, t: np.ndarray, sigma: np.ndarray, offset: np.ndarray) -> np.ndarray:
-    """``(n_nodes,)`` bool: the vertices of the fewest elements carrying :data:`HOT_SHARE` of the
-    energy of the field (tractions ``t``) in excess of the discrete stress ``sigma``'s."""
-    d, m = disc.dim, disc.material
-    sig = lift(maps, element_tractions(faces, t))
-    e = element_energies(disc, full_mandel(disc, sig, offset[:, None, None]))
-    s = np.asarray(sigma)
-    eta = np.maximum(von_mises(s) - m.yield_stress, 0.0) if m.hardening > 0 else 0.0
-    e1 = 0.5 * disc.volumes * (np.einsum("ei,ij,ej->e", s, m.compliance(d), s) + eta ** 2 / max(m.hardening, 1e-300))
-    ex = np.maximum(e - e1, 0.0)
-    order = np.argsort(-ex)
-    cum = np.cumsum(ex[order])
-    hot = np.zeros(disc.mesh.n_nodes, dtype=bool)
-    if cum.size == 0 or not cum[-1] > 0:
-        return hot
-    k = int(np.searchsorted(cum, HOT_SHARE * cum[-1])) + 1
-    hot[disc.mesh.cells[order[:k]].ravel()] = True
-    return hot
 
 
 def out_of_plane_offset(disc: Discretization, sigma: np.ndarray) -> np.ndarray:
@@ -268,20 +252,29 @@ def admissible_field(split_disc: Discretization, tau: np.ndarray, lam: np.ndarra
     return StaticField(tau=tau, eta=eta, contact_facets=cfs, lam=lam[where], force=float(split_disc.force))
 
 
-#: sweeps of :func:`local_lower_bound` by default (then the hot sweeps). Measured on the 2D
-#: cylinder (40 x 20, 1,600 triangles, plastic): energy bound -107.15 after 6 sweeps, -107.08
-#: after 12, against the global program's optimum -107.24 (benchmarks/bounds/local.md)
-LOCAL_SWEEPS = 6
+#: sweeps of :func:`local_lower_bound` by default, per dimension (after the first, a sweep
+#: visits only the rings next to a ring that moved: :data:`~elastoplast.bounds.edges.ACTIVE_SHARE`).
+#: Measured (benchmarks/bounds/local.md), gap over the global program's on the same mesh:
+#: 2D cylinder at 25,600 triangles 1.82 after 32 sweeps, 1.29 after 64 (1.02 after 128, a
+#: separate run); 3D default problem after 32: 1.27 at 1,536 tetrahedra, 1.48 at 12,288
+LOCAL_SWEEPS = {2: 64, 3: 32}
 
 
-def local_lower_bound(disc: Discretization, solution, n_sweeps: int = LOCAL_SWEEPS):
+def local_sweeps(dim: int) -> int:
+    """The default number of sweeps of :func:`local_lower_bound` in dimension ``dim``."""
+    return LOCAL_SWEEPS[dim]
+
+
+def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = None, *, progress=None):
     """The certified lower bound ``-J <= Pi*`` of the locally built field (module
     docstring) from a P1 ``solution`` of ``disc`` (its stresses and contact forces), as a
     :class:`~elastoplast.bounds.lower.LowerBound`: ``field`` lives on the split mesh,
     ``local`` holds the terms summed over each element's sub-elements (so that
     :func:`~elastoplast.bounds.bracket.combine` pairs it with an upper bound of ``disc``),
     ``solver`` is ``"local"``. Needs H > 0 (with H = 0 no local construction is known to
-    stay within the yield surface: use :func:`~elastoplast.bounds.lower.solve_lower_bound`)."""
+    stay within the yield surface: use :func:`~elastoplast.bounds.lower.solve_lower_bound`).
+    ``n_sweeps`` defaults to :func:`local_sweeps` of the dimension; ``progress``, if given, is
+    called as ``progress(fraction, what)`` after each phase and sweep (fraction in [0, 1])."""
     from elastoplast.bounds.lower import LowerBound
     from elastoplast.certificate.solution import Solution, Status
 
@@ -292,8 +285,14 @@ def local_lower_bound(disc: Discretization, solution, n_sweeps: int = LOCAL_SWEE
                          "bounds); with H = 0 use the global program (solve_lower_bound)")
     if np.shape(solution.sigma) != (disc.n_elements, disc.k):
         raise InputError("solution", "is the solution of another mesh")
+    if n_sweeps is None:
+        n_sweeps = local_sweeps(disc.dim)
+    report = progress if progress is not None else (lambda fraction, what: None)
     t0 = time.perf_counter()
-    lf = equilibrated_field(disc, solution.sigma, solution.contact_force, n_sweeps)
+    from elastoplast.linalg.amg import one_blas_thread
+
+    with one_blas_thread():  # small dense blocks: a second BLAS thread spin-waits for a busy core (measured 10x slower)
+        lf = equilibrated_field(disc, solution.sigma, solution.contact_force, n_sweeps, progress=report)
     sd = lf.split.disc
     t1 = time.perf_counter()
     psi = psi_weights(sd, sd.facet_topology)
@@ -306,9 +305,10 @@ def local_lower_bound(disc: Discretization, solution, n_sweeps: int = LOCAL_SWEE
     J = float(sub.element_energy.sum() + sub.facet_psi_work.sum())
     timings = dict(lf.timings, certify=time.perf_counter() - t1, total=time.perf_counter() - t0)
     certified = cert.passed and psi.rigorous
+    report(1.0, "certified" if certified else "not certified")
     msg = [f"local field: equilibration, exact lift, {n_sweeps} sweep(s); star residual {lf.star_residual:.1e}"
            + (f"; element imbalance {lf.imbalance[0]:.1e} repaired to {lf.imbalance[1]:.1e}"
-              + (" (whole-mesh projection)" if lf.imbalance[2] else " (star passes)") if n_sweeps else "")]
+              + " (ring passes)" if n_sweeps else "")]
     if not cert.passed:
         msg.append(f"NOT certified: {', '.join(f'{k} {getattr(cert, k):.1e}' for k in cert.failed)} above {cert.tol:.0e}")
     if not psi.rigorous:

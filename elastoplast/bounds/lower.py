@@ -85,33 +85,10 @@ from elastoplast.solvers.backends import (
 )
 from elastoplast.solvers.conic import ConicOptions, elastic_first
 
-# ----------------------------------------------------------------------------
-# facet topology
-# ----------------------------------------------------------------------------
-
-
-# ----------------------------------------------------------------------------
-# geometry
-# ----------------------------------------------------------------------------
-
-
-# ----------------------------------------------------------------------------
-# the obstacle term
-# ----------------------------------------------------------------------------
-
-
-# ----------------------------------------------------------------------------
-# the field, its energy and its certificate
-# ----------------------------------------------------------------------------
-
-
-# ----------------------------------------------------------------------------
-# the conic program (energy-normalised unknowns, O(1) units)
-# ----------------------------------------------------------------------------
-
-
 #: the solvers of the lower-bound programs (:attr:`LowerBoundOptions.solver`)
 LOWER_BOUND_SOLVERS = ("clarabel", "scs")
+#: the lower bounds :attr:`LowerBoundOptions.kind` chooses from
+LOWER_BOUND_KINDS = ("auto", "local", "global")
 
 
 @dataclass(frozen=True)
@@ -138,6 +115,13 @@ class LowerBoundOptions(SolverOptions):
     relative tolerance; ``scs_max_iter`` its iteration limit. With H = 0 the SCS
     program uses the larger margin ``max(yield_margin, SCS_YIELD_MARGIN_PER_EPS *
     scs_eps)`` (its residuals are of the size of ``scs_eps``, not 1e-9).
+
+    ``kind``: which lower bound :func:`~elastoplast.bounds.bracket.lower_bound` computes:
+    ``"global"`` (:func:`solve_lower_bound`, the optimum of the equilibrium element; the
+    only one with H = 0), ``"local"`` (:func:`~elastoplast.bounds.local.local_lower_bound`,
+    built from the P1 solution, H > 0) or ``"auto"`` (:func:`lower_bound_kind`). The
+    options above but ``tol`` are the global program's; its size and memory refusals
+    (:func:`check_lower_bound_size`) apply to it alone.
     """
 
     tol: float = option(CERTIFY_TOL, float, "tolerance of the admissibility certificate", lo=TIGHTEST_TOL, hi=1e-8)
@@ -153,6 +137,8 @@ class LowerBoundOptions(SolverOptions):
     solver: str = option("auto", str, "solver of the lower-bound program", choices=("auto", *LOWER_BOUND_SOLVERS))
     scs_eps: float = option(1e-6, float, "SCS's absolute and relative tolerance", lo=1e-12, hi=1e-2)
     scs_max_iter: int = option(100_000, int, "SCS's iteration limit", lo=1, hi=10_000_000)
+    kind: str = option("auto", str, "which lower bound: the global program, the local field, or auto",
+                       choices=LOWER_BOUND_KINDS)
 
 
 #: 3D meshes from this many elements use Clarabel's faer factorisation, smaller ones and
@@ -196,16 +182,6 @@ def yield_margin(solver: str, options: "LowerBoundOptions") -> float:
     if solver == "scs":
         return min(max(options.yield_margin, SCS_YIELD_MARGIN_PER_EPS * options.scs_eps), 1e-2)
     return options.yield_margin
-
-
-# ----------------------------------------------------------------------------
-# repair: exact projection onto the equality rows, lam >= 0 kept exactly
-# ----------------------------------------------------------------------------
-
-
-# ----------------------------------------------------------------------------
-# solving
-# ----------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -303,19 +279,60 @@ LOWER_BOUND_BYTES_PER_ELEMENT = {2: 45_000, 3: 250_000}
 SEQUENCE_MEMORY_FACTOR = 2.0
 
 
-def lower_bound_bytes(dim: int, n_elements: int) -> int:
-    """Estimated peak memory of one lower-bound program on ``n_elements`` elements."""
-    return int(LOWER_BOUND_BYTES_PER_ELEMENT[dim]) * int(n_elements)
+#: peak resident memory of the local lower bound per element (bytes): the process that ran
+#: the newton solve and the local bound (default sweeps), less its ~90 MB base, with a margin.
+#: Measured with /usr/bin/time -v (working tree of 2026-12-02, with the 3D sweeps on rings):
+#: 2D cylinder 7.3 kB at 6,400 triangles, 5.7 kB at 25,600 (newton alone 2.3 kB); 3D default
+#: problem 41 kB at 1,536 tetrahedra, 25 kB at 12,288 (395 MB; newton alone 140 MB, the
+#: global program 2.2 GB). Several in a row peak no higher (the U bracket's three local bounds
+#: and two solves at 6,400 triangles: 143 MB against 137 MB for one): no sequence factor.
+LOCAL_BOUND_BYTES_PER_ELEMENT = {2: 12_000, 3: 32_000}
+#: "auto" (:func:`lower_bound_kind`) takes the global program up to this many elements and
+#: the local bound above (H > 0): while the program costs no more than the local bound, its
+#: optimum (the tighter bound on all but the coarsest meshes) is worth it. Measured in one run
+#: of ``python benchmarks/bounds/local.py`` (local.md, 2 loaded cores), global / local (default
+#: sweeps: 64 in 2D, 32 in 3D): 2D cylinder 1,600 triangles 6.0 / 9.7 s, 6,400: 28.5 / 23.0 s,
+#: 25,600: 215 / 41 s (951 / 229 MB), the local gap 0.94, 1.10 and 1.28 times the global one;
+#: 3D default problem 1,536 tetrahedra 8.7 / 27.5 s, 12,288: 65 / 81 s (2.2 GB / 386 MB), the
+#: local gap 1.27 and 1.48 times the global one. So the program up to 8,000 triangles (the
+#: times cross near 6,400) and 15,000 tetrahedra (at 12,288 it is still faster and tighter;
+#: above, its time grows like N^1.3-1.5, its memory 200 kB per element, and it is refused at
+#: 25,000).
+AUTO_GLOBAL_MAX_ELEMENTS = {2: 8_000, 3: 15_000}
 
 
-def lower_bound_fits(dim: int, factor: float = SEQUENCE_MEMORY_FACTOR) -> int | None:
-    """The most elements whose lower-bound programs (``factor`` times the estimate of
-    one) fit in the memory available now (:func:`elastoplast.mesh.checks.available_memory`),
-    or None where that is unknown."""
+def lower_bound_kind(disc: Discretization, options: "LowerBoundOptions | None" = None) -> str:
+    """``"global"`` or ``"local"``: the lower bound ``options.kind`` asks for on ``disc``.
+    ``"auto"``: the global program when H = 0 (the only lower bound there) or the mesh has at
+    most :data:`AUTO_GLOBAL_MAX_ELEMENTS` elements, the local bound otherwise. ``"local"``
+    with H = 0 is refused (``InputError('kind')``)."""
+    options = LowerBoundOptions.of(options, "lower_options")
+    hardening = disc.material.hardening > 0
+    if options.kind == "local" and not hardening:
+        raise InputError("kind", "the local lower bound needs hardening > 0 (with H = 0 only the global program "
+                                 "keeps the stresses within the yield surface): choose 'global' or 'auto'")
+    if options.kind != "auto":
+        return options.kind
+    return "global" if not hardening or disc.n_elements <= AUTO_GLOBAL_MAX_ELEMENTS[disc.dim] else "local"
+
+
+def lower_bound_bytes(dim: int, n_elements: int, kind: str = "global") -> int:
+    """Estimated peak memory of one lower bound of ``kind`` on ``n_elements`` elements
+    (the global program's, or the local bound's with its solve)."""
+    per = LOWER_BOUND_BYTES_PER_ELEMENT if kind == "global" else LOCAL_BOUND_BYTES_PER_ELEMENT
+    return int(per[dim]) * int(n_elements)
+
+
+def lower_bound_fits(dim: int, factor: float = SEQUENCE_MEMORY_FACTOR, kind: str = "global") -> int | None:
+    """The most elements whose lower bounds of ``kind`` (global programs: ``factor`` times the
+    estimate of one; local bounds: one) fit in the memory available now
+    (:func:`elastoplast.limits.available_memory`), or None where that is unknown."""
     from elastoplast.limits import available_memory
 
     limit, _ = available_memory()
-    return None if limit is None else int(limit // (factor * LOWER_BOUND_BYTES_PER_ELEMENT[dim]))
+    if limit is None:
+        return None
+    return int(limit // ((factor if kind == "global" else 1.0) * lower_bound_bytes(dim, 1, kind)))
 
 
 def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, limit: bool = False,

@@ -14,15 +14,15 @@ from elastoplast.problem.definition import Problem
 
 def write_table(path, adaptive: AdaptResult, uniform_run: AdaptResult | None) -> str:
     """The steps as a Markdown table (adaptive, then uniform), with the fitted rates."""
-    head = "| run | step | elements | lower | upper | relative gap | U lower | U upper | s | certified |"
-    lines = [head, "|" + "---|" * 10]
+    head = "| run | step | elements | lower | upper | relative gap | U lower | U upper | s | certified | lower bound |"
+    lines = [head, "|" + "---|" * 11]
     for name, run in (("adaptive", adaptive), ("uniform", uniform_run)):
         if run is None:
             continue
         for s in run.steps:
             lines.append(f"| {name} | {s.step} | {s.n_elements} | {s.energy_lower:.10g} | {s.energy_upper:.10g} | "
                          f"{s.gap_rel:.3e} | {s.U_lower:.6g} | {s.U_upper:.6g} | {s.seconds:.1f} | "
-                         f"{'yes' if s.certified else 'no'} |")
+                         f"{'yes' if s.certified else 'no'} | {s.lower} |")
     lines += ["", f"Stopped: {adaptive.reason}.", "",
               f"Fitted rate of the relative gap in the number of elements (gap ~ N^-p): adaptive p = "
               f"{fitted_rate(adaptive.steps):.3f}"
@@ -94,9 +94,9 @@ def run_adapt_command(problem: Problem, options: AdaptOptions, out_dir) -> bool:
         final = run.final
         write_files(tmp, run.disc, run.solution,
                     extra={**b.as_dict(), "U_lower": final.U_lower, "U_upper": final.U_upper,
-                           "adapt_steps": len(run.steps), "adapt_reason": run.reason},
+                           "adapt_steps": len(run.steps), "adapt_reason": run.reason, "lower_bound_kind": final.lower},
                     **gap_fields(run.disc, b))
     print(f"{run.reason}: {final.n_elements:,} elements, relative gap {final.gap_rel:.3e}"
           + ("" if math.isnan(final.U_lower) else f", U in [{final.U_lower:.6g}, {final.U_upper:.6g}]")
-          + f" -> {out_dir}")
+          + f" ({final.lower} lower bound) -> {out_dir}")
     return bool(final.certified and final.gap_rel <= options.rtol)

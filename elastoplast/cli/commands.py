@@ -151,12 +151,8 @@ def _solve(args: argparse.Namespace) -> int:
 
 
 def _bounds(args: argparse.Namespace) -> int:
-    from elastoplast.bounds.bracket import certified_bounds, gap_fields
-    from elastoplast.bounds.lower import (
-        SEQUENCE_MEMORY_FACTOR,
-        LowerBoundOptions,
-        check_lower_bound_size,
-    )
+    from elastoplast.bounds.bracket import certified_bounds, check_lower_bound_fits, gap_fields, lower_kind
+    from elastoplast.bounds.lower import SEQUENCE_MEMORY_FACTOR, LowerBoundOptions
     from elastoplast.certificate.solution import Status
     from elastoplast.cli.results import write_results
     from elastoplast.solvers.registry import check_solvable, solve
@@ -164,8 +160,10 @@ def _bounds(args: argparse.Namespace) -> int:
     path, data, method, opts = _setup(args)
     refuse_path(data, "bounds")
     disc = _discretize(path, data, args.quiet, f"P1 solution by {method}, then the bounds")
-    # before the solve; the U bracket runs two more programs in this process
-    check_lower_bound_size(disc, LowerBoundOptions(), factor=1.0 if args.no_bracket else SEQUENCE_MEMORY_FACTOR)
+    lower_options = LowerBoundOptions(kind=args.lower or "auto")
+    # before the solve; the U bracket runs two more lower bounds in this process
+    with _lower_flag():
+        kind = check_lower_bound_fits(disc, lower_options, factor=1.0 if args.no_bracket else SEQUENCE_MEMORY_FACTOR)
     check_solvable(disc, method, opts)
     sol = solve(disc, method, opts)
     if sol.status is Status.INFEASIBLE:
@@ -174,16 +172,54 @@ def _bounds(args: argparse.Namespace) -> int:
     if not sol.converged:
         print(f"warning: the P1 solution did not converge ({sol.message}); its upper bound stays valid, only looser",
               file=sys.stderr)
-    report = certified_bounds(disc, sol, method, bracket=not args.no_bracket, options=opts)
+    with lower_bound_bar(args.quiet, kind) as progress:
+        report = certified_bounds(disc, sol, method, lower_options=lower_options, bracket=not args.no_bracket,
+                                  progress=progress, options=opts)
     b = report.bounds
     write_results(args.out, disc, sol, extra=report.as_dict(), field="--out", **gap_fields(disc, b))
     bracket = "" if args.no_bracket else (f"; U in [{figure(report.U_lower, '.6g')}, "
                                           f"{figure(report.U_upper, '.6g')}]")
+    used = {"local": "local field", "global": "global program"}[lower_kind(report.lower)]
     print(f"energy in [{figure(b.energy_lower, '.8g')}, {figure(b.energy_upper, '.8g')}] (relative gap "
-          f"{figure(b.energy_gap_rel, '.2e')}){bracket} (discrete U = {figure(sol.U, '.6g')}); stress error <= "
-          f"{figure(b.stress_error_bound, '.4g')} ({figure(100 * b.stress_error_bound_rel, '.2f')}%); "
+          f"{figure(b.energy_gap_rel, '.2e')}, lower bound: {used}){bracket} (discrete U = {figure(sol.U, '.6g')}); "
+          f"stress error <= {figure(b.stress_error_bound, '.4g')} ({figure(100 * b.stress_error_bound_rel, '.2f')}%); "
           f"{'certified' if report.certified else 'NOT certified'} -> {Path(args.out) / 'summary.json'}")
     return outcome(report.certified, f"not certified: upper: {report.upper.message}; lower: {report.lower.message}")
+
+
+@contextlib.contextmanager
+def _lower_flag() -> Iterator[None]:
+    """Name the lower-bound choice by its flag (``--lower``)."""
+    try:
+        yield
+    except InputError as exc:
+        if exc.field in ("kind", "lower_options.kind"):
+            raise InputError("--lower", exc.message) from None
+        raise
+
+
+@contextlib.contextmanager
+def lower_bound_bar(quiet: bool, kind: str):
+    """A progress bar on stderr for the lower bounds (the local bound reports as it goes),
+    and the ``progress(fraction, what)`` that moves it."""
+    from tqdm.auto import tqdm
+
+    bars = []  # opened at the first report, after the upper bound's solves and their own bars
+
+    def progress(fraction: float, what: str) -> None:
+        if not bars:
+            bars.append(tqdm(total=100, desc=f"{kind} lower bound", unit="%", disable=quiet, file=sys.stderr,
+                             leave=False, bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}"))
+        bar = bars[0]
+        bar.n = round(100 * fraction)
+        bar.set_description_str(elide(what, 60), refresh=False)
+        bar.refresh()
+
+    try:
+        yield progress
+    finally:
+        for bar in bars:
+            bar.close()
 
 
 def _limit(args: argparse.Namespace) -> int:
@@ -236,7 +272,8 @@ def _adapt(args: argparse.Namespace) -> int:
     from_file = {"tol": table["tol"]} if "tol" in table else {}
     AdaptOptions.build(from_file, prefix="solver.")  # the range of adapt's P1 tolerance, named as written
     given = {k: v for k, v in (("rtol", args.rtol), ("theta", args.theta), ("max_elements", args.max_elements),
-                               ("time_limit", args.time_limit), ("bracket", args.bracket)) if v is not None}
+                               ("time_limit", args.time_limit), ("bracket", args.bracket), ("lower", args.lower))
+             if v is not None}
     given = {**from_file, **given}
     if args.no_uniform:
         given["compare_uniform"] = False

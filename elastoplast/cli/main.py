@@ -63,7 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="bounds", help="output folder (default: bounds)")
     _add_solver_arguments(p, time_help="wall-clock limit of the P1 solve in seconds (the bound programs are not "
                                        "limited; 'adapt --time-limit' budgets a whole run)")
-    p.add_argument("--no-bracket", action="store_true", help="no U bracket (it costs two more lower-bound programs)")
+    p.add_argument("--no-bracket", action="store_true", help="no U bracket (it costs two more lower bounds)")
+    _add_lower_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
     p = sub.add_parser("limit", help="bracket the limit load of perfect plasticity (hardening = 0)")
@@ -84,6 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bracket", choices=["every", "final", "never"],
                    help="U bracket on the final mesh (default), at every step, or none")
     p.add_argument("--no-uniform", action="store_true", help="skip the uniform-refinement comparison")
+    _add_lower_argument(p)
     p.add_argument("--out", default="adapt", help="output folder (default: adapt)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
@@ -142,6 +144,19 @@ def _add_solver_arguments(p: argparse.ArgumentParser, time_help: str = "wall-clo
     p.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
                    help="any option of the method (value in TOML syntax), e.g. --option polish=false; "
                         "'elastoplast options METHOD' lists them")
+
+
+def _add_lower_argument(p: argparse.ArgumentParser) -> None:
+    from elastoplast.bounds.lower import AUTO_GLOBAL_MAX_ELEMENTS, LOWER_BOUND_KINDS
+
+    p.add_argument("--lower", choices=LOWER_BOUND_KINDS,
+                   help="the lower bound: 'global', the optimum of the equilibrium element (a conic program; "
+                        "the only one with hardening = 0; its cost grows fast, refused above 25,000 tetrahedra), "
+                        "'local', an admissible field built from the P1 solution in passes over the mesh "
+                        "(hardening > 0; no global program), or 'auto' (default): global with "
+                        "hardening = 0 and up to "
+                        f"{AUTO_GLOBAL_MAX_ELEMENTS[2]:,} triangles or {AUTO_GLOBAL_MAX_ELEMENTS[3]:,} tetrahedra, "
+                        "local above")
 
 
 def _add_dask_arguments(p: argparse.ArgumentParser) -> None:

@@ -1,0 +1,360 @@
+"""Ring sweeps of the local lower bound: complementary-energy minimisation on edge patches
+(3D) and vertex stars (2D) that keeps the field exactly admissible (docs/bounds.md).
+
+On a ring (:mod:`elastoplast.bounds.rings`) the self-equilibrated corrections are
+``tau_f = K_f alpha_f + W_f q`` in closed form. Each ring solves
+
+    minimise  J_ring(t + B y)   over y = (alpha, q)
+
+by one Newton step (exact for the elastic part; for the plastic part ``int eta^2 / 2H`` with
+``eta = max(0, vm - sigma_y)`` at the sub-element vertices, the Gauss–Newton term plus the
+curvature of ``vm`` where ``eta > 0``), kept with the first step length of :data:`STEPS`
+that lowers J_ring. On Γ0 faces the pressure is a ring unknown: ``int lam = F`` is kept
+(a ring is self-equilibrated: its boundary faces' net force is zero), ``lam >= 0`` by
+capping the step, and J_ring gains the obstacle term ``sum q lam``. Rings of one colour
+share no element and are solved as one batch; after the first sweep only the rings next
+to a ring that moved are visited (:data:`ACTIVE_SHARE`). Nothing per element is stored
+between batches: an element's Hessian in the tractions of its two faces through the
+entity is assembled on the fly from fixed reference matrices (the composite element's
+lift in reference tractions, :func:`reference_operators`) combined with the element's
+``(T P)^T A (T P)`` (P the double Piola map of the lift), one matrix product per
+local-entity class."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from elastoplast.bounds.equilibrate import Faces
+from elastoplast.bounds.lift import MANDEL_PAIRS, ElementMaps, mandel_to_tensor, reference_lift, tensor_to_mandel
+from elastoplast.bounds.rings import RingBatch, face_bases, local_entities
+from elastoplast.bounds.static import mass_matrix
+from elastoplast.bounds.sweeps import element_energy, stress_map
+from elastoplast.fem.material import Material, deviator_matrix, von_mises
+
+#: step lengths tried per ring (the first that lowers J_ring is kept)
+STEPS = (1.0, 0.5, 0.25)
+#: relative ridge of the Jacobi-scaled ring Hessian
+RIDGE = 1e-12
+#: a step that lowers a pressure stops this share short of zero (so round-off cannot make it negative)
+LAM_MARGIN = 1e-9
+#: a ring is swept again when a ring sharing one of its elements lowered J by more than this
+#: share of the mean gain per ring of the last sweep (the rest have converged to round-off of the gap)
+ACTIVE_SHARE = 0.05
+
+
+@lru_cache(maxsize=None)
+def reference_operators(d: int):
+    """``(Lfull (S, nte), sel (n_le, nsel), Lsel (n_le, S, nsel), HQ (n_le, m m, nsel nsel), HD, AV)``:
+    the reference lift (S = (d+1)^2 m sub-vertex Mandel values from the nte reference
+    vertex tractions), the element traction dofs of the two facets through each local
+    entity (facet, vertex ascending, component), their lift columns and
+    ``HQ[pq] = sum_s sum_bc M_bc L[s,b,p,:]^T L[s,c,q,:]`` and, per sub-vertex,
+    ``HD[sb, pq] = L[s,b,p,:]^T L[s,b,q,:]`` (the curvature of the plastic part)."""
+    d1 = d + 1
+    ref = reference_lift(d)
+    m = len(MANDEL_PAIRS[d])
+    Lfull = ref.matrix.reshape(d1 * d1 * m, d1 * d1 * d)
+    _, LF = local_entities(d)
+    AV = np.array([[a for a in range(d1) if a != f] for f in range(d1)])
+    sel = np.array([[(f * d1 + a) * d + i for f in LF[le] for a in AV[f] for i in range(d)] for le in range(LF.shape[0])])
+    Lsel = Lfull[:, sel].transpose(1, 0, 2)  # (n_le, S, nsel)
+    M = mass_matrix(d)
+    L4 = Lsel.reshape(-1, d1, d1, m, sel.shape[1])
+    HQ = np.einsum("bc,lsbpx,lscqy->lpqxy", M, L4, L4).reshape(LF.shape[0], m * m, -1)
+    L3 = Lsel.reshape(LF.shape[0], d1 * d1, m, -1)
+    HD = np.einsum("lspx,lsqy->lspqxy", L3, L3).reshape(LF.shape[0], d1 * d1 * m * m, -1)
+    return Lfull, sel, Lsel, HQ, HD, AV
+
+
+def piola(maps: ElementMaps, E: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """``TP (N, k, m)``: full Mandel stress from the in-plane reference Mandel values (double Piola map)."""
+    d = maps.J.shape[1]
+    m = len(MANDEL_PAIRS[d])
+    J, det = maps.J[E], maps.det[E]
+    Eb = mandel_to_tensor(np.eye(m), d)
+    JE = np.matmul(J[:, None], Eb[None])  # (N, q, d, d)
+    P = tensor_to_mandel(np.matmul(JE, np.swapaxes(J, 1, 2)[:, None]), d) / det[:, None, None]  # (N, q, p)
+    return np.einsum("kp,nqp->nkq", T, P)
+
+
+def ring_sweep(points, cells, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes: np.ndarray,
+               material: Material, batches: list[RingBatch], n_sweeps: int, offset: np.ndarray | None = None,
+               progress=None, psi: np.ndarray | None = None, contact: np.ndarray | None = None) -> np.ndarray:
+    """At most ``n_sweeps`` sweeps over the ring ``batches`` (after the first, only the rings
+    next to a ring that moved, :data:`ACTIVE_SHARE`); returns the new facet tractions ``(F, d, d)``.
+    ``contact (F,)`` marks the Γ0 facets, whose pressure ``t[f, :, d-1] >= 0`` the rings may
+    move when it is among the free components of the batches, and ``psi (F, d)`` their
+    obstacle weights ``q`` at the vertices (J gains ``sum q lam``);
+    ``progress(i)`` is called after sweep i."""
+    n, d1 = cells.shape
+    d = d1 - 1
+    T = stress_map(d, material)
+    k = T.shape[0]
+    A = material.compliance(d)
+    M = mass_matrix(d)
+    ctx = dict(T=T, A=A, M=M, MA=np.kron(M, A), sy=material.yield_stress, H=material.hardening,
+               Dv=deviator_matrix(d), base=np.zeros((n, k)), ops=reference_operators(d),
+               psi=np.zeros((faces.nodes.shape[0], d)) if psi is None else psi)
+    ctx["contact"] = np.zeros(faces.nodes.shape[0], dtype=bool) if contact is None else contact
+    if offset is not None and d == 2:
+        ctx["base"][:, 2] = offset
+    t = t.copy()
+    active = np.ones(rings.n_ent, dtype=bool)
+    for i in range(n_sweeps):
+        gain = np.zeros(rings.n_ent)
+        for b in batches:
+            keep = active[b.ent]
+            if keep.all():
+                gain[b.ent] = ring_step(b, points, maps, faces, rings, t, volumes, ctx)
+            elif keep.any():
+                sub = subset(b, keep)
+                gain[sub.ent] = ring_step(sub, points, maps, faces, rings, t, volumes, ctx)
+        if progress is not None:
+            progress(i + 1)
+        # next sweep: the rings that share an element with a ring whose gain was not negligible
+        done = int(active.sum())
+        moved = gain > ACTIVE_SHARE * gain.sum() / max(done, 1)
+        if not moved.any():
+            break
+        active = np.zeros(rings.n_ent, dtype=bool)
+        active[rings.elem_ent[moved[rings.elem_ent].any(axis=1)].ravel()] = True
+    return t
+
+
+def subset(b: RingBatch, keep: np.ndarray) -> RingBatch:
+    """The rings ``keep`` (bool) of a batch."""
+    return RingBatch(*(getattr(b, f)[keep] for f in ("ent", "E", "valid", "le", "lf", "j", "o", "F", "s", "end", "Nb")))
+
+
+def ring_face_bases(b: RingBatch, points, faces: Faces, rings, d: int) -> np.ndarray:
+    """``(m, kf, d d, na + nq)``: the correction of each ring face's rotational traction per
+    ring unknown (its own ``alpha`` then the ring's ``q``)."""
+    m, kf = b.F.shape
+    dd = d * d
+    nq = b.Nb.shape[2]
+    ok = b.F >= 0
+    Fs = np.where(ok, b.F, 0)
+    X = points[faces.nodes[Fs.ravel()]]
+    p = np.repeat(rings.point[b.ent], kf, axis=0)
+    ell = np.repeat(rings.ell[b.ent], kf)
+    K, G = face_bases(X, p, ell)
+    na = K.shape[2]
+    K, G = K.reshape(m, kf, dd, na), G.reshape(m, kf, dd, -1)
+    interior = ok & (b.end < 0)
+    B = np.zeros((m, kf, dd, na + nq))
+    B[..., :na] = K * interior[:, :, None, None]
+    B[..., na:] = np.matmul(G, b.Nb[:, None, 2 * dd:, :]) * interior[:, :, None, None]
+    for e in (0, 1):
+        at = b.end == e
+        B[..., na:] += np.where(at[:, :, None, None], b.Nb[:, None, e * dd:(e + 1) * dd, :], 0.0)
+    return B
+
+
+def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes, ctx: dict):
+    T, M, MA, sy, H, A = ctx["T"], ctx["M"], ctx["MA"], ctx["sy"], ctx["H"], ctx["A"]
+    Lfull, sel, Lsel, HQ, HD, AV = ctx["ops"]
+    m_r, ke = b.E.shape
+    kf = b.F.shape[1]
+    d = maps.J.shape[1]
+    d1 = d + 1
+    k = T.shape[0]
+    mm = len(MANDEL_PAIRS[d])
+    nsel = sel.shape[1]
+    B = ring_face_bases(b, points, faces, rings, d)
+    na = B.shape[3] - b.Nb.shape[2]
+    nq = b.Nb.shape[2]
+    r = kf * na + nq
+    flat = b.E.ravel()
+    N = flat.size
+    le = b.le.ravel()
+    valid = b.valid.ravel()
+    ring = np.repeat(np.arange(m_r), ke)
+    w = volumes[flat] / d1 * valid
+    # element traction dofs of the two facets: face position, slot
+    lf = b.lf.reshape(N, 2)
+    jpos = b.j.reshape(N, 2)
+    o = b.o.reshape(N, 2)
+    verts = AV[lf]  # (N, 2, d)
+    slot = faces.slot[flat[:, None, None], lf[:, :, None], verts]  # (N, 2, d)
+    rows = B.reshape(m_r, kf, d, d, -1)[ring[:, None, None], jpos[:, :, None], slot]  # (N, 2, d, d comp, na+nq)
+    re = 2 * na + nq
+    Ge = np.zeros((N, 2, d, d, re))
+    Ge[:, 0, :, :, :na] = rows[:, 0, :, :, :na]
+    Ge[:, 1, :, :, na:2 * na] = rows[:, 1, :, :, :na]
+    Ge[..., 2 * na:] = rows[..., na:]
+    Ge *= (o * valid[:, None])[:, :, None, None, None]
+    Jinv = maps.Jinv[flat]
+    ref = reference_lift(d)
+    scale = maps.facet_areas[flat[:, None], lf] / ref.areas[lf]  # (N, 2)
+    Gh = sum(Jinv[:, None, None, :, jj, None] * Ge[:, :, :, jj, None, :] for jj in range(d))
+    Gh *= scale[:, :, None, None, None]
+    Gh = Gh.reshape(N, nsel, re)
+    cidx = np.concatenate([jpos[:, :1] * na + np.arange(na), jpos[:, 1:] * na + np.arange(na),
+                           np.broadcast_to(kf * na + np.arange(nq), (N, nq))], axis=1)  # (N, re)
+    # current stresses
+    te = element_traction_rows(faces, t, flat)
+    that = np.matmul(te, np.swapaxes(Jinv, 1, 2)[:, None]) * (maps.facet_areas[flat] / ref.areas)[:, :, None, None]
+    Sig = (that.reshape(N, -1) @ Lfull.T).reshape(N, d1 * d1, mm)
+    TP = piola(maps, flat, T)
+    base = ctx["base"][flat][:, None, :]
+    sig = np.matmul(Sig, np.swapaxes(TP, 1, 2)) + base  # (N, s b, k)
+    sig4 = sig.reshape(N, d1, d1, k)
+    J0 = element_energy(sig4, w, MA, M, sy, H).reshape(m_r, ke).sum(axis=1)
+    gs = (sig.reshape(N, d1, d1 * k) @ MA.T).reshape(N, d1 * d1, k) * w[:, None, None]
+    Q = np.matmul(np.swapaxes(TP, 1, 2), A @ TP) * w[:, None, None]
+    plastic = np.zeros(N, dtype=bool)
+    if H > 0:
+        vm = von_mises(sig4)
+        eta = np.maximum(vm - sy, 0.0)
+        nrm = 1.5 * (sig4 @ ctx["Dv"].T) / np.maximum(vm, 1e-300)[..., None]
+        nrm = np.where((eta > 0)[..., None], nrm, 0.0)
+        gs = gs + ((eta @ M)[..., None] * nrm * (w / H)[:, None, None, None]).reshape(N, d1 * d1, k)
+        plastic = (eta > 0).any(axis=(1, 2)) & valid
+    z = np.matmul(gs, TP).reshape(N, -1)  # (N, S): TP^T gs per sub-vertex
+    gsel = np.empty((N, nsel))
+    Hh = np.empty((N, nsel, nsel))
+    for v in range(Lsel.shape[0]):
+        idx = np.flatnonzero(le == v)
+        if idx.size == 0:
+            continue
+        gsel[idx] = z[idx] @ Lsel[v]
+        Hh[idx] = (Q[idx].reshape(idx.size, -1) @ HQ[v]).reshape(idx.size, nsel, nsel)
+        pi = idx[plastic[idx]]
+        if pi.size:
+            nt = np.matmul(nrm[pi].reshape(pi.size, d1 * d1, k), TP[pi])  # (P, s b, m)
+            L4 = Lsel[v].reshape(d1 * d1, mm, nsel)
+            Ln = np.matmul(nt[:, :, None, :], L4[None])[:, :, 0, :].reshape(pi.size, d1, d1, nsel)
+            MLn = np.matmul(M, Ln).reshape(pi.size, d1 * d1, nsel)
+            Ln = Ln.reshape(pi.size, d1 * d1, nsel)
+            Hh[pi] += np.matmul(np.swapaxes(Ln, 1, 2), MLn) * (w[pi] / H)[:, None, None]
+            # Newton's curvature term: sum_sb (M eta)_sb / vm_sb (1.5 Dv - n n^T) in the lifted dofs
+            c = np.where(eta[pi] > 0, (eta[pi] @ M) / np.maximum(vm[pi], 1e-300), 0.0).reshape(pi.size, -1)
+            c = c * (w[pi] / H)[:, None]
+            Dq = np.matmul(np.swapaxes(TP[pi], 1, 2), 1.5 * ctx["Dv"] @ TP[pi])  # (P, m, m)
+            Hh[pi] += ((c[:, :, None, None] * Dq[:, None]).reshape(pi.size, -1) @ HD[v]).reshape(pi.size, nsel, nsel)
+            Hh[pi] -= np.matmul(np.swapaxes(Ln * c[:, :, None], 1, 2), Ln)
+    ge = np.matmul(gsel[:, None, :], Gh)[:, 0]
+    He = np.matmul(np.swapaxes(Gh, 1, 2), np.matmul(Hh, Gh))  # (N, re, re)
+    gr = np.bincount((ring[:, None] * r + cidx).ravel(), ge.ravel(), minlength=m_r * r).reshape(m_r, r)
+    Fs = np.where(b.F >= 0, b.F, 0)
+    onc = ctx["contact"][Fs] & (b.F >= 0)  # Γ0 faces of the rings: lam = t[:, d-1] = s tau[:, d-1]
+    has_c = onc.any()
+    if has_c:
+        Bl = B.reshape(m_r, kf, d, d, -1)[:, :, :, d - 1, :] * (b.s * onc)[:, :, None, None]  # (m, kf, slot, cols)
+        gpsi = np.einsum("mfa,mfac->mfc", ctx["psi"][Fs], Bl)
+        gp = np.concatenate([gpsi[..., :na].reshape(m_r, kf * na), gpsi[..., na:].sum(axis=1)], axis=1)
+        gr += gp
+    hidx = (ring[:, None, None] * r + cidx[:, :, None]) * r + cidx[:, None, :]
+    Hr = np.bincount(hidx.ravel(), He.ravel(), minlength=m_r * r * r).reshape(m_r, r, r)
+    diag = np.einsum("mii->mi", Hr)
+    dead = ~(diag > 0)
+    ds = np.where(dead, 1.0, 1.0 / np.sqrt(np.where(dead, 1.0, diag)))
+    Hs = Hr * ds[:, :, None] * ds[:, None, :]
+    Hs[:, np.arange(r), np.arange(r)] += dead + RIDGE
+    y = -ds * np.linalg.solve(Hs, (gr * ds)[..., None])[..., 0]
+    y[dead] = 0.0
+    ye = y[ring[:, None], cidx]  # (N, re)
+    dth = np.matmul(Gh, ye[..., None])[..., 0]
+    dSig = np.empty((N, d1 * d1 * mm))
+    for v in range(Lsel.shape[0]):
+        idx = np.flatnonzero(le == v)
+        if idx.size:
+            dSig[idx] = dth[idx] @ Lsel[v].T
+    dsig = np.matmul(dSig.reshape(N, d1 * d1, mm), np.swapaxes(TP, 1, 2))
+    yf = np.concatenate([y[:, :kf * na].reshape(m_r, kf, na), np.broadcast_to(y[:, None, kf * na:], (m_r, kf, nq))], axis=2)
+    dtau = np.matmul(B, yf[..., None])[..., 0]  # (m, kf, dd): the change of each ring face per unit step
+    cap = np.ones(m_r)
+    lin = np.zeros(m_r)
+    if has_c:  # the pressure stays >= 0 at the vertices of the Γ0 faces: the step is capped
+        # the pressure change is read from the very numbers that will be added (dtau), so the cap is exact
+        dlam = (b.s[..., None] * dtau.reshape(m_r, kf, d, d)[..., d - 1]) * onc[..., None]
+        lam0 = t[Fs, :, d - 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lim = np.where(onc[..., None] & (dlam < 0), np.maximum(lam0, 0.0) / -dlam, np.inf)
+        cap = np.minimum(1.0, (1.0 - LAM_MARGIN) * lim.min(axis=(1, 2)))  # lam0 + cap dlam >= LAM_MARGIN lam0 > 0
+        lin = np.einsum("mr,mr->m", gp, y)
+    best = np.zeros(m_r)
+    gain = np.zeros(m_r)
+    todo = np.flatnonzero(cap > 0)
+    for a in STEPS:  # the first step length that lowers J_ring, evaluated on the undecided rings only
+        el = (todo[:, None] * ke + np.arange(ke)).ravel()
+        at = a * cap[todo]
+        Ja = element_energy((sig[el] + np.repeat(at, ke)[:, None, None] * dsig[el]).reshape(-1, d1, d1, k), w[el],
+                            MA, M, sy, H)
+        Jr = Ja.reshape(-1, ke).sum(axis=1) + at * lin[todo]
+        better = Jr < J0[todo]
+        best[todo[better]] = at[better]
+        gain[todo[better]] = J0[todo[better]] - Jr[better]
+        todo = todo[~better]
+        if todo.size == 0:
+            break
+    dtau *= best[:, None, None]
+    ok = b.F >= 0
+    t.reshape(t.shape[0], -1)[b.F[ok]] += (b.s[..., None] * dtau)[ok]
+    return gain
+
+
+def element_traction_rows(faces: Faces, t: np.ndarray, E: np.ndarray) -> np.ndarray:
+    """``(N, d+1, d+1, d)``: the outward vertex tractions of the elements ``E`` (zero where vertex == facet)."""
+    slot = faces.slot[E]
+    te = t[faces.face[E][:, :, None], np.where(slot >= 0, slot, 0)] * faces.sign[E][:, :, None, None]
+    return np.where((slot >= 0)[..., None], te, 0.0)
+
+
+def ring_repair(points, cells, maps: ElementMaps, faces: Faces, t: np.ndarray, batches: list[RingBatch],
+                free: np.ndarray, tol: float, passes: int) -> tuple[np.ndarray, float, float]:
+    """The round-off repair of the elements' force and moment balance, ring by ring: on each
+    ring, the least-norm correction of its faces' free traction components that zeroes the
+    balance rows of its elements (rows normalised; ``(C C^T + eps I)`` solved and refined
+    once, so a ring's own net imbalance, which it cannot change, is left for the next
+    colour). Passes over all colours until the largest relative imbalance
+    (:func:`~elastoplast.bounds.sweeps.element_imbalance`) is at most ``tol``.
+    Returns ``(t, before, after)``."""
+    from elastoplast.bounds.sweeps import balance_matrices, element_imbalance
+
+    t = t.copy()
+    before = after = float(element_imbalance(points, cells, maps, faces, t).max(initial=0.0))
+    d = cells.shape[1] - 1
+    dd = d * d
+    _, sel, _, _, _, AV = reference_operators(d)
+    for _ in range(passes):
+        if after <= tol:
+            break
+        for b in batches:
+            m_r, ke = b.E.shape
+            kf = b.F.shape[1]
+            flat = b.E.ravel()
+            N = flat.size
+            C = balance_matrices(points, cells[flat], maps.facet_areas[flat])  # (N, nb, nte)
+            nb = C.shape[1]
+            te = element_traction_rows(faces, t, flat).reshape(N, -1)
+            res = -np.einsum("nrx,nx->nr", C, te) * b.valid.ravel()[:, None]
+            lf = b.lf.reshape(N, 2)
+            slot = faces.slot[flat[:, None, None], lf[:, :, None], AV[lf]]  # (N, 2, d)
+            col = (b.j.reshape(N, 2)[:, :, None] * d + slot)[..., None] * d + np.arange(d)  # (N, 2, d, d)
+            fr = free[b.F.reshape(-1)].reshape(m_r, kf, d) & (b.F >= 0)[..., None]
+            ring = np.repeat(np.arange(m_r), ke)
+            ok = fr[ring[:, None, None], b.j.reshape(N, 2)[:, :, None], np.arange(d)[None, None, :]]  # (N, 2, d comp)
+            sgn = faces.sign[flat[:, None], lf] * b.valid.ravel()[:, None]  # (N, 2)
+            Csel = np.take_along_axis(C, np.broadcast_to(sel[b.le.ravel()][:, None, :], (N, nb, sel.shape[1])), axis=2)
+            Csel = Csel.reshape(N, nb, 2, d, d) * (sgn[:, None, :, None, None] * ok[:, None, :, None, :])
+            ncol = kf * dd
+            Cs = np.zeros((m_r, ke * nb, ncol))
+            lin = (np.arange(N * nb).reshape(N, nb, 1) * ncol + col.reshape(N, 1, -1)).ravel()
+            Cs.reshape(-1)[lin] = Csel.reshape(-1)
+            rhs = res.reshape(m_r, ke * nb)
+            nrm = np.linalg.norm(Cs, axis=2)
+            live = nrm > 0
+            nrm = np.where(live, nrm, 1.0)
+            Cs, rhs = Cs / nrm[..., None], np.where(live, rhs / nrm, 0.0)
+            G = np.matmul(Cs, np.swapaxes(Cs, 1, 2)) + 1e-10 * np.eye(ke * nb)
+            x = np.zeros((m_r, ncol))
+            for _ in range(2):
+                r = rhs - np.matmul(Cs, x[..., None])[..., 0]
+                x += np.matmul(np.swapaxes(Cs, 1, 2), np.linalg.solve(G, r[..., None]))[..., 0]
+            ok_f = b.F >= 0
+            t.reshape(t.shape[0], -1)[b.F[ok_f]] += x.reshape(m_r, kf, dd)[ok_f]
+        after = float(element_imbalance(points, cells, maps, faces, t).max(initial=0.0))
+    return t, before, after

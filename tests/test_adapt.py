@@ -17,6 +17,7 @@ from elastoplast.adapt.budget import FIT_STEPS, affordable_elements, next_mesh, 
 from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate
 from elastoplast.cli.plots import outline_segments, plot_indicator, slice_polygons
 from elastoplast.adapt.loop import adapt, uniform
+from elastoplast.errors import InputError
 from elastoplast.mesh.refinement import dorfler_mark, refine
 
 from conftest import cylinder_dict, sphere_quarter_dict
@@ -306,3 +307,33 @@ def test_adapt_refuses_perfect_plasticity():
     with pytest.raises(ep.InputError) as exc:
         adapt(disc.problem, AdaptOptions(rtol=0.1))
     assert exc.value.field == "material.hardening"
+
+
+@pytest.mark.parametrize("field", ["mesh", "boundary.contact"])
+def test_a_refused_lower_bound_ends_the_run_at_the_previous_mesh(coarse_cylinder, monkeypatch, field):
+    """`adapt` on the default 3D problem once failed outright (exit 2, nothing written) at
+    its third mesh, where the local bound refused the P1 solution's balance next to Γ0. A
+    lower bound's refusal of a later mesh now ends the run at the last bounded mesh, with
+    the refusal in the reason; on the first mesh it is still raised."""
+    bound = ad._bound
+
+    def refusing(problem, options, step, *args, **kwargs):
+        if step == 1:
+            raise InputError(field, "refused here")
+        return bound(problem, options, step, *args, **kwargs)
+
+    monkeypatch.setattr(ad, "_bound", refusing)
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", max_iter=4))
+    assert len(run.steps) == 1 and run.steps[0].n_elements == coarse_cylinder.mesh.n_elements
+    assert f"{field}: refused here" in run.reason and "ends at the previous mesh" in run.reason
+    assert run.steps[0].certified
+
+
+def test_an_unexpected_refusal_is_raised(coarse_cylinder, monkeypatch):
+    """Refusals of other fields (bad input) are not swallowed by the loop."""
+    def refusing(problem, options, step, *args, **kwargs):
+        raise InputError("material.E", "refused")
+
+    monkeypatch.setattr(ad, "_bound", refusing)
+    with pytest.raises(InputError, match="refused"):
+        adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", max_iter=2))

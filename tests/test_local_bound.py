@@ -151,6 +151,40 @@ def test_deeper_contact_layer_needs_a_smaller_correction(cylinder, monkeypatch):
     assert norms[1] <= norms[0] * (1 + 1e-12)
 
 
+def test_a_layer_too_thin_for_an_exact_correction_grows(cylinder, monkeypatch):
+    """An adaptively refined 3D default problem (19,780 tetrahedra) left a relative residual
+    of 1.3e-11 with the three-ring layer and round-off with four: the layer grows ring by ring
+    (at most LAYER_GROWTH) until its correction is exact, else the refusal names the rings
+    tried. Here the thinner layers are made to fail."""
+    disc, sol, _ = cylinder
+    from elastoplast.bounds.equilibrate import mesh_faces
+    from elastoplast.bounds.lift import element_maps
+
+    maps = element_maps(disc.mesh.points, disc.mesh.cells)
+    faces = mesh_faces(disc.mesh.cells, disc.facet_topology, maps.facet_areas)
+    S = local.in_plane_stress(disc, sol.sigma)
+    exact = contact_layer.layer_correction
+    tried = []
+
+    def thin_fails(disc, on_contact, measure, delta, r, rings, fail_below):
+        tried.append(rings)
+        dS, worst = exact(disc, on_contact, measure, delta, r, rings)
+        return dS, (1e-9 if rings < fail_below else worst)
+
+    start = contact_layer.LAYER_RINGS
+    monkeypatch.setattr(contact_layer, "layer_correction", lambda *a: thin_fails(*a, fail_below=start + 2))
+    _, dS = contact_layer.contact_pressure_and_correction(disc, faces, S, sol.contact_force)
+    assert tried == [start, start + 1, start + 2]
+    monkeypatch.setattr(contact_layer, "layer_correction", exact)
+    _, direct = contact_layer.contact_pressure_and_correction(disc, faces, S, sol.contact_force, start + 2)
+    assert np.array_equal(dS, direct)  # the grown layer's own correction
+    tried.clear()
+    monkeypatch.setattr(contact_layer, "layer_correction", lambda *a: thin_fails(*a, fail_below=99))
+    with pytest.raises(ep.InputError, match=f"layers of {start} to {start + contact_layer.LAYER_GROWTH} rings"):
+        contact_layer.contact_pressure_and_correction(disc, faces, S, sol.contact_force)
+    assert tried == list(range(start, start + contact_layer.LAYER_GROWTH + 1))
+
+
 def test_3d_local_bound_is_certified():
     disc = build(sphere_quarter_dict(divisions=(3, 3, 3)))
     sol = ep.solve(disc, "newton")

@@ -14,8 +14,8 @@ own limits, :func:`~elastoplast.adapt.budget.lower_bound_budget`), or ``time_lim
 The lower bound of each mesh is :func:`~elastoplast.bounds.bracket.lower_bound`'s, of the
 kind ``options.lower`` asks for: by default (``"auto"``) the global program (the optimum
 of the equilibrium element) on meshes up to
-:data:`~elastoplast.bounds.lower.AUTO_GLOBAL_MAX_ELEMENTS` (8,000 triangles, 15,000
-tetrahedra), the local field built from the P1 solution above, whose cost grows like the
+:data:`~elastoplast.bounds.lower.AUTO_GLOBAL_MAX_ELEMENTS` (the program's size limit: 100,000
+triangles, 25,000 tetrahedra), the local field built from the P1 solution above, whose cost grows like the
 solve's; the global program's size limit
 (:data:`~elastoplast.bounds.lower.LOWER_BOUND_MAX_ELEMENTS`, 25,000 tetrahedra) and memory
 model then no longer stop the loop. Where the local bound is used, the P1 solves are
@@ -237,6 +237,12 @@ def uniform(problem: Problem, options: AdaptOptions = AdaptOptions(), max_elemen
     return _loop(problem, opts, report, adaptive=False)
 
 
+#: the fields of the lower bound's refusals that end a run at its last mesh instead of failing it:
+#: the memory available ("mesh"), and the local bound's contact layer ("boundary.contact": the
+#: P1 solution's nodal balance next to Γ0 off by more than its round-off tolerance)
+REFUSALS = ("mesh", "boundary.contact")
+
+
 def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> AdaptResult:
     t_start = time.perf_counter()
     mesh, state, start = problem.mesh, None, None
@@ -252,11 +258,12 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
         t0 = time.perf_counter()
         try:
             bounded = _bound(replace(problem, mesh=mesh), options, k, start, bracket=options.bracket == "every")
-        except InputError as exc:  # memory taken by others since the plan: keep what was done
-            if exc.field != "mesh" or not steps:
+        except InputError as exc:  # memory taken by others since the plan, or the local bound's
+            # refusal of a P1 solution whose balance next to Γ0 it cannot repair: keep what was done
+            if exc.field not in REFUSALS or not steps:
                 raise
-            reason = (f"the lower bound refused the next mesh ({exc.message}); the run ends at the previous mesh, "
-                      "without its U bracket")
+            reason = (f"the lower bound refused the next mesh ({exc.field}: {exc.message}); the run ends at the "
+                      "previous mesh, without its U bracket")
             break
         done = bounded
         meshes.append(mesh)

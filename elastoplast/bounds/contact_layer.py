@@ -44,6 +44,9 @@ MOMENT_WEIGHT = 1e3
 DENSE_NODES = 2000
 #: the correction's relative residual above which the contact layer is refused
 LAYER_TOL = 1e-13
+#: rings the layer may grow by when its correction is not exact (measured: an adaptively
+#: refined 3D default problem, 19,780 tetrahedra, left 1.3e-11 with 3 rings, round-off with 4)
+LAYER_GROWTH = 3
 
 
 def nodal_pressure(disc: Discretization, facet_nodes: np.ndarray, measure: np.ndarray,
@@ -124,6 +127,24 @@ def contact_pressure_and_correction(disc: Discretization, faces: Faces, S: np.nd
     delta[:, -1] = moments - r
     on_contact = np.zeros(n_nodes, dtype=bool)
     on_contact[fn.ravel()] = True
+    worst = np.inf
+    for deeper in range(LAYER_GROWTH + 1):  # a layer too thin to carry the mismatch exactly grows by a ring
+        dS, worst = layer_correction(disc, on_contact, measure, delta, r, rings + deeper)
+        if worst <= LAYER_TOL:
+            return lam, dS
+    raise InputError("boundary.contact", f"the stress correction next to Γ0 leaves a relative residual "
+                     f"{worst:.1e} (> {LAYER_TOL:.0e}) with layers of {rings} to {rings + LAYER_GROWTH} rings: "
+                     "no local lower bound")
+
+
+def layer_correction(disc: Discretization, on_contact: np.ndarray, measure: np.ndarray, delta: np.ndarray,
+                     r: np.ndarray, rings: int) -> tuple[np.ndarray, float]:
+    """``(Delta (n, d, d), residual)``: the least-norm constant stress per element of the layer of
+    ``rings`` rings (and :data:`LAYER_DEPTH` facet lengths) around the Γ0 nodes ``on_contact``
+    whose nodal forces are ``-delta`` at the free dofs, and its largest relative residual
+    (against the largest contact force ``r``)."""
+    d = disc.dim
+    n_nodes = disc.mesh.n_nodes
     cells = disc.mesh.cells
     near = on_contact.copy()
     for _ in range(rings - 1):  # grow the layer by whole vertex stars
@@ -157,9 +178,6 @@ def contact_pressure_and_correction(disc: Discretization, faces: Faces, S: np.nd
     x = w * y
     scale = max(np.abs(r).max(initial=0.0), np.finfo(float).tiny)
     worst = float(np.abs(B @ x - b).max(initial=0.0)) / scale
-    if not worst <= LAYER_TOL:
-        raise InputError("boundary.contact", f"the stress correction next to Γ0 leaves a relative residual "
-                         f"{worst:.1e} (> {LAYER_TOL:.0e}): no local lower bound")
     dS = np.zeros((disc.n_elements, d, d))
     dS[layer] = mandel_to_tensor(x.reshape(-1, ms), d)
-    return lam, dS
+    return dS, worst

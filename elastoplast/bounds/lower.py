@@ -287,18 +287,18 @@ SEQUENCE_MEMORY_FACTOR = 2.0
 #: global program 2.2 GB). Several in a row peak no higher (the U bracket's three local bounds
 #: and two solves at 6,400 triangles: 143 MB against 137 MB for one): no sequence factor.
 LOCAL_BOUND_BYTES_PER_ELEMENT = {2: 12_000, 3: 32_000}
-#: "auto" (:func:`lower_bound_kind`) takes the global program up to this many elements and
-#: the local bound above (H > 0): while the program costs no more than the local bound, its
-#: optimum (the tighter bound on all but the coarsest meshes) is worth it. Measured in one run
-#: of ``python benchmarks/bounds/local.py`` (local.md, 2 loaded cores), global / local (default
-#: sweeps: 64 in 2D, 32 in 3D): 2D cylinder 1,600 triangles 6.0 / 9.7 s, 6,400: 28.5 / 23.0 s,
-#: 25,600: 215 / 41 s (951 / 229 MB), the local gap 0.94, 1.10 and 1.28 times the global one;
-#: 3D default problem 1,536 tetrahedra 8.7 / 27.5 s, 12,288: 65 / 81 s (2.2 GB / 386 MB), the
-#: local gap 1.27 and 1.48 times the global one. So the program up to 8,000 triangles (the
-#: times cross near 6,400) and 15,000 tetrahedra (at 12,288 it is still faster and tighter;
-#: above, its time grows like N^1.3-1.5, its memory 200 kB per element, and it is refused at
-#: 25,000).
-AUTO_GLOBAL_MAX_ELEMENTS = {2: 8_000, 3: 15_000}
+#: "auto" (:func:`lower_bound_kind`) takes the global program wherever its size limit
+#: (:data:`LOWER_BOUND_MAX_ELEMENTS`) allows, and the local bound above it (H > 0), where
+#: the program is refused. On uniform meshes the local bound is close to the program's
+#: optimum and cheaper from about 6,400 triangles (one run of ``benchmarks/bounds/local.py``,
+#: local.md: 2D cylinder global / local 28.5 / 23.0 s at 6,400 triangles, 215 / 41 s at
+#: 25,600, the local gap 1.10 and 1.28 times the global one; 3D default problem 65 / 81 s at
+#: 12,288 tetrahedra, 1.48 times), but not on graded ones: on the quarter sphere (1,080
+#: tetrahedra) its gap is 12.9 times the program's, and within ``elastoplast adapt`` on the
+#: cylinder the first locally bounded mesh (8,374 triangles) had a relative gap of 0.154
+#: against 0.0068 on the mesh before it with the program. So it takes over only where the
+#: program cannot go.
+AUTO_GLOBAL_MAX_ELEMENTS = dict(LOWER_BOUND_MAX_ELEMENTS)
 
 
 def lower_bound_kind(disc: Discretization, options: "LowerBoundOptions | None" = None) -> str:

@@ -39,6 +39,13 @@ from elastoplast.fem.assembly import element_geometry
 from elastoplast.mesh.topology import boundary_facets
 
 
+def patch_force(dim: int, stress_ratio: float, m: ep.Material) -> float:
+    """The force on the uniaxial-strain patch (bottom area 3 in 2D, 6 in 3D) at ``stress_ratio``
+    times the axial stress of first yield, (lam + 2 mu) sigma_y / (2 mu)."""
+    first_yield = (m.lam + 2 * m.mu) * m.yield_stress / (2 * m.mu)
+    return stress_ratio * first_yield * (3.0 if dim == 2 else 6.0)
+
+
 def closed_form_energy(dim: int, F: float, m: ep.Material) -> tuple[float, float]:
     """``(J*, Pi*)`` of the uniaxial-strain patch: J* = 1/2 |Omega| (sigma A sigma + xi^2/H)
     and Pi* = |Omega| W(eps) - F U with W from the return mapping (docs/bounds.md)."""
@@ -59,8 +66,7 @@ def closed_form_energy(dim: int, F: float, m: ep.Material) -> tuple[float, float
 @pytest.mark.parametrize("stress_ratio", [0.5, 3.0], ids=["elastic", "plastic"])
 def test_patch_lower_bound_is_the_closed_form(dim, stress_ratio):
     m = ep.Material(E, NU, SY, H)
-    first_yield = (m.lam + 2 * m.mu) * SY / (2 * m.mu)
-    F = stress_ratio * first_yield * (3.0 if dim == 2 else 6.0)
+    F = patch_force(dim, stress_ratio, m)
     disc = ep.discretize(patch_problem(dim, F))
     lb = solve_lower_bound(disc)
     J_exact, Pi_exact = closed_form_energy(dim, F, m)

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import build, cylinder_dict, sphere_quarter_dict
-from test_equilibrium import closed_form_energy
+from test_equilibrium import closed_form_energy, patch_force
 from test_patch import E, H, NU, SY, patch_problem
 
 import elastoplast as ep
@@ -76,8 +76,7 @@ def test_lift_of_a_thin_element_returns_its_facet_tractions(dim, tol):
 @pytest.mark.parametrize("stress_ratio", [0.5, 3.0], ids=["elastic", "plastic"])
 def test_patch_local_bound_is_the_closed_form(dim, stress_ratio):
     m = ep.Material(E, NU, SY, H)
-    first_yield = (m.lam + 2 * m.mu) * SY / (2 * m.mu)
-    F = stress_ratio * first_yield * (3.0 if dim == 2 else 6.0)
+    F = patch_force(dim, stress_ratio, m)
     disc = ep.discretize(patch_problem(dim, F))
     sol = ep.solve(disc, "newton")
     lb = local_lower_bound(disc, sol, n_sweeps=2)  # the ring sweeps keep a closed-form field (no step lowers J)

@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 import pytest
 from conftest import build, cylinder_dict, sphere_quarter_dict
-from test_equilibrium import closed_form_energy
+from test_equilibrium import closed_form_energy, patch_force
 from test_patch import E, H, NU, SY, patch_problem
 
 import elastoplast as ep
@@ -69,8 +69,7 @@ def test_scs_bound_is_certified_and_as_tight_as_clarabel(case):
 @pytest.mark.parametrize("dim", [2, 3])
 def test_scs_patch_bound_is_the_closed_form(dim):
     m = ep.Material(E, NU, SY, H)
-    first_yield = (m.lam + 2 * m.mu) * SY / (2 * m.mu)
-    F = 3.0 * first_yield * (3.0 if dim == 2 else 6.0)  # plastic
+    F = patch_force(dim, 3.0, m)  # plastic
     disc = ep.discretize(patch_problem(dim, F))
     lb = solve_lower_bound(disc, SCS)
     _, Pi = closed_form_energy(dim, F, m)

@@ -346,8 +346,8 @@ def solve_at(disc: Discretization, force: float, method: str, start=None, tol: f
     (:data:`~elastoplast.solvers.path.WARM_STARTS`); cold again if that does not converge."""
     from dataclasses import replace
 
-    from elastoplast.solvers.path import WARM_STARTS
-    from elastoplast.solvers.registry import check_solvable, get_method, given_options, solve
+    from elastoplast.solvers.path import WARM_STARTS, run_from
+    from elastoplast.solvers.registry import get_method, given_options
 
     at = disc.with_force(force)
     m = get_method(method)
@@ -356,18 +356,11 @@ def solve_at(disc: Discretization, force: float, method: str, start=None, tol: f
     if tol is not None and opts.tol > tol:
         opts = replace(opts, tol=tol)
     opts = replace(opts, progress=False)  # within the caller's progress (the lower bounds')
-    takes = WARM_STARTS.get(m.name) if start is not None else None
-    if takes is None:
-        return solve(at, method, opts)
-    check_solvable(at, m.name, opts)
+    if start is None or m.name not in WARM_STARTS:
+        return run_from(at, m, opts, None)
     start = replace(start, contact_force=np.asarray(start.contact_force) * (force / disc.force))
-    if takes == "warm_start":  # newton's argument
-        from elastoplast.solvers.newton import solve_newton
-
-        sol = solve_newton(at, opts, warm_start=start)
-    else:
-        sol = m.run(at, replace(opts, **{takes: start}))
-    return sol if sol.converged else solve(at, method, opts)
+    sol = run_from(at, m, opts, start)
+    return sol if sol.converged else run_from(at, m, opts, None)
 
 
 def local_solution(disc: Discretization, solution, method: str | None = None, **options):

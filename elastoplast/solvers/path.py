@@ -160,8 +160,9 @@ def _guess(prev: PathStep | None, before: PathStep | None, force: float) -> Solu
     return replace(sol, u=ratio * sol.u, U=sol.U + ratio * dU, contact_force=sol.contact_force * (force / f_prev))
 
 
-def _run(disc: Discretization, m: Method, options: SolverOptions, start: Solution | None) -> Solution:
-    """One step by ``m``, from ``start`` where the method takes one (:data:`WARM_STARTS`)."""
+def run_from(disc: Discretization, m: Method, options: SolverOptions, start: Solution | None) -> Solution:
+    """``disc`` solved by ``m``, from ``start`` where the method takes one (:data:`WARM_STARTS`;
+    a path's step, or a solve at a nearby force)."""
     check_solvable(disc, m.name, options)
     takes = WARM_STARTS.get(m.name) if start is not None else None
     if takes == "warm_start":  # newton's argument
@@ -205,7 +206,7 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
     for i, force in enumerate(forces):
         step_disc = disc.step(force, state, u_free)
         start = _guess(prev, before, force) if warm_start else None
-        sol = _run(step_disc, m_run, opts, start)
+        sol = run_from(step_disc, m_run, opts, start)
         du = step_disc.free_displacement(sol.u)
         d_eps = step_disc.strain(du)
         beyond = small_strain_note(disc, u_free + du)  # the total strain, not the increment's

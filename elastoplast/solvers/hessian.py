@@ -253,13 +253,17 @@ class State:
     xi: np.ndarray
     plastic: np.ndarray
     tangent: np.ndarray | None
-    grad: np.ndarray
+    grad: np.ndarray | None
     energy: float
+    #: the strains of the plastic elements (``disc.strain(u)[plastic]``), kept by
+    #: :func:`~elastoplast.solvers.newton.evaluate` so that the tangents need no second
+    #: product ``B u`` (None: computed again)
+    eps_plastic: np.ndarray | None = None
 
     def with_tangent(self, disc: Discretization) -> "State":
         """The same iterate with its consistent tangents (computed on the plastic elements only)."""
         if self.tangent is not None:
             return self
-        eps = disc.strain(self.u)[self.plastic]
+        eps = disc.strain(self.u)[self.plastic] if self.eps_plastic is None else self.eps_plastic
         state = None if disc.state is None else disc.state.rows(self.plastic)
         return replace(self, tangent=consistent_tangent(disc.material, eps, state)[2])

@@ -88,18 +88,7 @@ def ring_sweep(points, cells, maps: ElementMaps, faces: Faces, rings, t: np.ndar
     move when it is among the free components of the batches, and ``psi (F, d)`` their
     obstacle weights ``q`` at the vertices (J gains ``sum q lam``);
     ``progress(i)`` is called after sweep i."""
-    n, d1 = cells.shape
-    d = d1 - 1
-    T = stress_map(d, material)
-    k = T.shape[0]
-    A = material.compliance(d)
-    M = mass_matrix(d)
-    ctx = dict(T=T, A=A, M=M, MA=np.kron(M, A), sy=material.yield_stress, H=material.hardening,
-               Dv=deviator_matrix(d), base=np.zeros((n, k)), ops=reference_operators(d),
-               psi=np.zeros((faces.nodes.shape[0], d)) if psi is None else psi)
-    ctx["contact"] = np.zeros(faces.nodes.shape[0], dtype=bool) if contact is None else contact
-    if offset is not None and d == 2:
-        ctx["base"][:, 2] = offset
+    ctx = sweep_context(material, faces, cells.shape[0], cells.shape[1] - 1, offset, psi, contact)
     t = t.copy()
     active = np.ones(rings.n_ent, dtype=bool)
     for i in range(n_sweeps):
@@ -121,6 +110,23 @@ def ring_sweep(points, cells, maps: ElementMaps, faces: Faces, rings, t: np.ndar
         active = np.zeros(rings.n_ent, dtype=bool)
         active[rings.elem_ent[moved[rings.elem_ent].any(axis=1)].ravel()] = True
     return t
+
+
+def sweep_context(material: Material, faces: Faces, n: int, d: int, offset=None, psi=None, contact=None) -> dict:
+    """What J's evaluation on ``n`` elements needs besides the tractions: the stress map,
+    compliance, mass matrices, yield stress, hardening, deviator, the plane-strain
+    ``tau33`` offset (``base``), the reference operators, the obstacle weights ``psi``
+    and the Γ0 facets ``contact`` (:func:`ring_sweep`'s arguments)."""
+    T = stress_map(d, material)
+    A = material.compliance(d)
+    M = mass_matrix(d)
+    ctx = dict(T=T, A=A, M=M, MA=np.kron(M, A), sy=material.yield_stress, H=material.hardening,
+               Dv=deviator_matrix(d), base=np.zeros((n, T.shape[0])), ops=reference_operators(d),
+               psi=np.zeros((faces.nodes.shape[0], d)) if psi is None else psi,
+               contact=np.zeros(faces.nodes.shape[0], dtype=bool) if contact is None else contact)
+    if offset is not None and d == 2:
+        ctx["base"][:, 2] = offset
+    return ctx
 
 
 def subset(b: RingBatch, keep: np.ndarray) -> RingBatch:
@@ -152,7 +158,11 @@ def ring_face_bases(b: RingBatch, points, faces: Faces, rings, d: int) -> np.nda
     return B
 
 
-def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes, ctx: dict):
+def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes, ctx: dict,
+              system_only: bool = False):
+    """One Newton step of J on each ring of the batch (module docstring), written into ``t``;
+    returns each ring's gain. ``system_only``: return the rings' gradient and Hessian in
+    their unknowns ``(gr (m, r), Hr (m, r, r))`` instead, ``t`` untouched."""
     T, M, MA, sy, H, A = ctx["T"], ctx["M"], ctx["MA"], ctx["sy"], ctx["H"], ctx["A"]
     Lfull, sel, Lsel, HQ, HD, AV = ctx["ops"]
     m_r, ke = b.E.shape
@@ -248,6 +258,8 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
         gr += gp
     hidx = (ring[:, None, None] * r + cidx[:, :, None]) * r + cidx[:, None, :]
     Hr = np.bincount(hidx.ravel(), He.ravel(), minlength=m_r * r * r).reshape(m_r, r, r)
+    if system_only:
+        return gr, Hr
     diag = np.einsum("mii->mi", Hr)
     dead = ~(diag > 0)
     ds = np.where(dead, 1.0, 1.0 / np.sqrt(np.where(dead, 1.0, diag)))
@@ -279,6 +291,8 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
     gain = np.zeros(m_r)
     todo = np.flatnonzero(cap > 0)
     for a in STEPS:  # the first step length that lowers J_ring, evaluated on the undecided rings only
+        if todo.size == 0:  # (every ring's step capped to nothing by a pressure at zero)
+            break
         el = (todo[:, None] * ke + np.arange(ke)).ravel()
         at = a * cap[todo]
         Ja = element_energy((sig[el] + np.repeat(at, ke)[:, None, None] * dsig[el]).reshape(-1, d1, d1, k), w[el],
@@ -288,8 +302,6 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
         best[todo[better]] = at[better]
         gain[todo[better]] = J0[todo[better]] - Jr[better]
         todo = todo[~better]
-        if todo.size == 0:
-            break
     dtau *= best[:, None, None]
     ok = b.F >= 0
     t.reshape(t.shape[0], -1)[b.F[ok]] += (b.s[..., None] * dtau)[ok]

@@ -82,9 +82,11 @@ class LocalField:
 
 
 def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: np.ndarray,
-                       n_sweeps: int = 0, progress=None) -> LocalField:
+                       n_sweeps: int = 0, progress=None, descent: int = 0) -> LocalField:
     """Steps 1-3 and 5 of the module docstring from the discrete stresses ``sigma (n, k)``
-    in nodal balance with the contact forces ``contact_force`` (per contact node)."""
+    in nodal balance with the contact forces ``contact_force`` (per contact node);
+    ``n_sweeps`` ring sweeps, then at most ``descent`` steps over all rings together
+    (step 4; both need ``n_sweeps > 0``)."""
     t0 = time.perf_counter()
     timings = {}
     d, m = disc.dim, disc.material
@@ -131,14 +133,30 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
         t1 = time.perf_counter()
         offset = out_of_plane_offset(disc, sigma)
 
+        share = 0.75 if descent <= 0 else 0.35  # of the progress bar, for the sweeps
+
         def swept(i):
-            report(0.15 + 0.75 * i / n_sweeps, f"sweep {i} of at most {n_sweeps}")
+            report(0.15 + share * i / n_sweeps, f"sweep {i} of at most {n_sweeps}")
 
         on_contact = np.zeros(faces.nodes.shape[0], dtype=bool)
         on_contact[cf] = True
         t = ring_sweep(mesh.points, mesh.cells, maps, faces, rings, t, disc.volumes, m, batches, n_sweeps, offset, swept,
                        psi_face, on_contact)
         timings["sweeps"] = time.perf_counter() - t1
+        timings["descent_steps"] = 0
+        if descent > 0:
+            from elastoplast.bounds.edges import sweep_context
+            from elastoplast.bounds.frame import RingFrame, frame_descent
+
+            t1 = time.perf_counter()
+            ctx = sweep_context(m, faces, disc.n_elements, d, offset, psi_face, on_contact)
+
+            def stepped(i):
+                report(0.5 + 0.4 * i / descent, f"descent step {i} of at most {descent}")
+
+            t, timings["descent_steps"] = frame_descent(mesh.points, maps, faces, rings, t, disc.volumes, ctx,
+                                                        RingFrame(batches, mesh.points, faces, rings, d), descent, stepped)
+            timings["descent"] = time.perf_counter() - t1
         t1 = time.perf_counter()
         # the repair leaves the pressure alone (lam >= 0 stays exact): interior and prescribed-free components only
         t, before, after = ring_repair(mesh.points, mesh.cells, maps, faces, t, batches, faces.unknown, REPAIR_TOL,
@@ -258,6 +276,16 @@ def admissible_field(split_disc: Discretization, tau: np.ndarray, lam: np.ndarra
 #: 2D cylinder at 25,600 triangles 1.82 after 32 sweeps, 1.29 after 64 (1.02 after 128, a
 #: separate run); 3D default problem after 32: 1.27 at 1,536 tetrahedra, 1.48 at 12,288
 LOCAL_SWEEPS = {2: 64, 3: 32}
+#: steps at most of the descent over all rings together after the sweeps
+#: (:mod:`elastoplast.bounds.frame`; it stops earlier once its predicted decrease is below
+#: :data:`~elastoplast.bounds.frame.DESCENT_RTOL` of J). The sweeps alone stall in plastic
+#: zones. Measured (benchmarks/bounds/local.md and the closing runs of 2026-12-02), gap over
+#: the global program's on the same mesh: quarter sphere 1,080 tetrahedra 12.9 after 32
+#: sweeps, 5.1 with 100 steps after them, 1.30 with 300; default 3D problem 12,288: 1.48,
+#: 1.41 (+133 s), 1.69 after 8 sweeps and 300 steps (+364 s: one step costs about half a
+#: sweep, and the steps needed grow with the mesh); 2D cylinder 25,600: 1.28 after 64
+#: sweeps, 0.99 with 100 steps (47 s against the program's 64 s)
+DESCENT_STEPS = {2: 100, 3: 100}
 
 
 def local_sweeps(dim: int) -> int:
@@ -265,7 +293,8 @@ def local_sweeps(dim: int) -> int:
     return LOCAL_SWEEPS[dim]
 
 
-def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = None, *, progress=None):
+def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = None, *, descent: int | None = None,
+                      progress=None):
     """The certified lower bound ``-J <= Pi*`` of the locally built field (module
     docstring) from a P1 ``solution`` of ``disc`` (its stresses and contact forces), as a
     :class:`~elastoplast.bounds.lower.LowerBound`: ``field`` lives on the split mesh,
@@ -273,8 +302,9 @@ def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = Non
     :func:`~elastoplast.bounds.bracket.combine` pairs it with an upper bound of ``disc``),
     ``solver`` is ``"local"``. Needs H > 0 (with H = 0 no local construction is known to
     stay within the yield surface: use :func:`~elastoplast.bounds.lower.solve_lower_bound`).
-    ``n_sweeps`` defaults to :func:`local_sweeps` of the dimension; ``progress``, if given, is
-    called as ``progress(fraction, what)`` after each phase and sweep (fraction in [0, 1])."""
+    ``n_sweeps`` ring sweeps (default :func:`local_sweeps` of the dimension), then at most
+    ``descent`` steps over all rings together (default :data:`DESCENT_STEPS`; 0: none). ``progress``, if given, is called as
+    ``progress(fraction, what)`` after each phase, sweep and step (fraction in [0, 1])."""
     from elastoplast.bounds.lower import LowerBound
     from elastoplast.certificate.solution import Solution, Status
 
@@ -285,6 +315,8 @@ def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = Non
                          "bounds); with H = 0 use the global program (solve_lower_bound)")
     if np.shape(solution.sigma) != (disc.n_elements, disc.k):
         raise InputError("solution", "is the solution of another mesh")
+    if descent is None:
+        descent = DESCENT_STEPS[disc.dim]
     if n_sweeps is None:
         n_sweeps = local_sweeps(disc.dim)
     report = progress if progress is not None else (lambda fraction, what: None)
@@ -292,7 +324,8 @@ def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = Non
     from elastoplast.linalg.amg import one_blas_thread
 
     with one_blas_thread():  # small dense blocks: a second BLAS thread spin-waits for a busy core (measured 10x slower)
-        lf = equilibrated_field(disc, solution.sigma, solution.contact_force, n_sweeps, progress=report)
+        lf = equilibrated_field(disc, solution.sigma, solution.contact_force, n_sweeps, progress=report,
+                                descent=descent)
     sd = lf.split.disc
     t1 = time.perf_counter()
     psi = psi_weights(sd, sd.facet_topology)
@@ -306,7 +339,10 @@ def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = Non
     timings = dict(lf.timings, certify=time.perf_counter() - t1, total=time.perf_counter() - t0)
     certified = cert.passed and psi.rigorous
     report(1.0, "certified" if certified else "not certified")
-    msg = [f"local field: equilibration, exact lift, {n_sweeps} sweep(s); star residual {lf.star_residual:.1e}"
+    steps = lf.timings.get("descent_steps", 0)
+    msg = [f"local field: equilibration, exact lift, {n_sweeps} sweep(s)"
+           + (f", {steps} descent step(s) over all rings" if steps else "")
+           + f"; star residual {lf.star_residual:.1e}"
            + (f"; element imbalance {lf.imbalance[0]:.1e} repaired to {lf.imbalance[1]:.1e}"
               + " (ring passes)" if n_sweeps else "")]
     if not cert.passed:

@@ -280,24 +280,21 @@ SEQUENCE_MEMORY_FACTOR = 2.0
 
 
 #: peak resident memory of the local lower bound per element (bytes): the process that ran
-#: the newton solve and the local bound (default sweeps), less its ~90 MB base, with a margin.
-#: Measured with /usr/bin/time -v (working tree of 2026-12-02, with the 3D sweeps on rings):
-#: 2D cylinder 7.3 kB at 6,400 triangles, 5.7 kB at 25,600 (newton alone 2.3 kB); 3D default
-#: problem 41 kB at 1,536 tetrahedra, 25 kB at 12,288 (395 MB; newton alone 140 MB, the
-#: global program 2.2 GB). Several in a row peak no higher (the U bracket's three local bounds
+#: the newton solve and the local bound (default sweeps and descent), less its ~90 MB base,
+#: with a margin. Measured (benchmarks/bounds/local.md, 2026-12-02 06:16 UTC, VmHWM): 2D
+#: cylinder 7.3 kB at 25,600 triangles (newton alone 2.3 kB); 3D default problem 42 kB at
+#: 12,288 tetrahedra (607 MB; 25 kB with the sweeps alone; newton alone 142 MB, the global
+#: program 2.2 GB): the descent keeps every ring's correction basis, its inverse Hessian
+#: and ten L-BFGS pairs. Several in a row peak no higher (the U bracket's three local bounds
 #: and two solves at 6,400 triangles: 143 MB against 137 MB for one): no sequence factor.
-LOCAL_BOUND_BYTES_PER_ELEMENT = {2: 12_000, 3: 32_000}
+LOCAL_BOUND_BYTES_PER_ELEMENT = {2: 12_000, 3: 50_000}
 #: "auto" (:func:`lower_bound_kind`) takes the global program wherever its size limit
 #: (:data:`LOWER_BOUND_MAX_ELEMENTS`) allows, and the local bound above it (H > 0), where
-#: the program is refused. On uniform meshes the local bound is close to the program's
-#: optimum and cheaper from about 6,400 triangles (one run of ``benchmarks/bounds/local.py``,
-#: local.md: 2D cylinder global / local 28.5 / 23.0 s at 6,400 triangles, 215 / 41 s at
-#: 25,600, the local gap 1.10 and 1.28 times the global one; 3D default problem 65 / 81 s at
-#: 12,288 tetrahedra, 1.48 times), but not on graded ones: on the quarter sphere (1,080
-#: tetrahedra) its gap is 12.9 times the program's, and within ``elastoplast adapt`` on the
-#: cylinder the first locally bounded mesh (8,374 triangles) had a relative gap of 0.154
-#: against 0.0068 on the mesh before it with the program. So it takes over only where the
-#: program cannot go.
+#: the program is refused: the program is the optimum of its space, and on the meshes it
+#: accepts mostly the cheaper (one run of ``benchmarks/bounds/local.py``, local.md, global /
+#: local with its defaults: 2D cylinder 7.8 / 12.1 s at 6,400 triangles, 58 / 45 s at
+#: 25,600, the local gap 1.01 and 0.99 times the global one; 3D default problem 43 / 195 s
+#: at 12,288 tetrahedra, 1.41 times; quarter sphere at 1,080 tetrahedra 5.1 times).
 AUTO_GLOBAL_MAX_ELEMENTS = dict(LOWER_BOUND_MAX_ELEMENTS)
 
 

@@ -1,0 +1,311 @@
+"""Descent of the local field over every ring correction at once (docs/bounds.md, "a local field").
+
+Ring sweeps (:mod:`elastoplast.bounds.edges`) minimise J one ring at a time. In plastic
+zones that is a poor method: the rings' moves are strongly coupled there, and the sweeps
+stall far above the optimum of the field's own space (on the quarter sphere at 162
+tetrahedra, 512 sweeps stop at J = 79.8 while the optimum over the same self-equilibrated
+corrections is below 35.5, itself below the global equilibrium program's 36.8; the
+elastic case converges in 32 sweeps). The ring corrections together span every
+self-equilibrated correction of the facet tractions (but for the contact zone's resultant
+moments when free facets surround it: docs/bounds.md), so ``t = t0 + B y`` with ``B`` the
+*frame* of all rings' bases (:class:`RingFrame`, redundant: an interior facet belongs to
+several rings) parametrises the whole admissible set, and a quasi-Newton method on
+``J(t0 + B y)`` (:func:`frame_descent`) moves all rings together. Every step is a sum of
+ring corrections, so the field stays exactly admissible (up to round-off, which the ring
+repair removes as after the sweeps); the contact pressure is kept ``>= 0`` by capping
+each step, as the rings do, and by holding the pressures at zero that a step would lower."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from elastoplast.bounds.edges import (LAM_MARGIN, RIDGE, element_traction_rows, piola, ring_face_bases,
+                                      ring_step)
+from elastoplast.bounds.equilibrate import Faces
+from elastoplast.bounds.lift import MANDEL_PAIRS, ElementMaps, reference_lift
+from elastoplast.bounds.rings import RingBatch
+from elastoplast.fem.material import von_mises
+
+#: L-BFGS pairs kept
+MEMORY = 10
+#: the descent stops once a step's predicted decrease of J is below this share of |J|
+DESCENT_RTOL = 1e-6
+#: Armijo's sufficient decrease
+ARMIJO = 1e-4
+#: a pressure at most this share of the largest counts as zero (its decrease is projected out)
+ZERO_PRESSURE = 1e-6
+#: rows of the held pressures whose singular value is below this share of the largest are dependent
+HELD_RCOND = 1e-10
+#: a held pressure's change at most this share of the step's largest pressure change is round-off
+HELD_ROUNDOFF = 1e-12
+
+
+class RingFrame:
+    """The linear map ``y -> dt`` from every ring's unknowns (its facets' ``alpha`` then
+    its ``q``, ring after ring, batch after batch) to the change of the facet tractions
+    ``(F, d, d)``, and its adjoint."""
+
+    def __init__(self, batches: list[RingBatch], points, faces: Faces, rings, d: int):
+        self.parts = []
+        self.n_faces = faces.nodes.shape[0]
+        self.d = d
+        off = 0
+        for b in batches:
+            B = ring_face_bases(b, points, faces, rings, d)
+            m, kf = b.F.shape
+            nq = b.Nb.shape[2]
+            na = B.shape[3] - nq
+            self.parts.append((b, B, na, nq, off))
+            off += m * (kf * na + nq)
+        self.size = off
+
+    def apply(self, y: np.ndarray) -> np.ndarray:
+        d = self.d
+        dt = np.zeros((self.n_faces, d * d))
+        for b, B, na, nq, off in self.parts:
+            m, kf = b.F.shape
+            Y = y[off: off + m * (kf * na + nq)].reshape(m, -1)
+            yf = np.concatenate([Y[:, :kf * na].reshape(m, kf, na), np.broadcast_to(Y[:, None, kf * na:], (m, kf, nq))],
+                                axis=2)
+            dtau = np.matmul(B, yf[..., None])[..., 0]
+            ok = b.F >= 0
+            dt[b.F[ok]] += (b.s[..., None] * dtau)[ok]  # rings of one batch share no facet
+        return dt.reshape(self.n_faces, d, d)
+
+    def adjoint(self, g: np.ndarray) -> np.ndarray:
+        """``B^T g`` of tractions ``g (F, d, d)``, or of a stack ``(K, F, d, d)`` (then ``(K, size)``)."""
+        d = self.d
+        stack = g.ndim == 4
+        g2 = g.reshape(-1, self.n_faces, d * d)
+        out = np.empty((g2.shape[0], self.size))
+        for b, B, na, nq, off in self.parts:
+            m, kf = b.F.shape
+            ok = b.F >= 0
+            gf = np.where(ok[..., None], b.s[..., None] * g2[:, np.where(ok, b.F, 0)], 0.0)  # (K, m, kf, dd)
+            c = np.einsum("mfxc,kmfx->kmfc", B, gf)
+            Y = out[:, off: off + m * (kf * na + nq)].reshape(-1, m, kf * na + nq)
+            Y[..., :kf * na] = c[..., :na].reshape(-1, m, kf * na)
+            Y[..., kf * na:] = c[..., na:].sum(axis=2)
+        return out if stack else out[0]
+
+    def unit_rows(self, f: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``B^T e_i`` for the unit tractions ``e_i`` at facet ``f[i]``, entry ``x[i]`` (of its
+        ``d d``), on the columns that any of them touches: ``(cols (c,), rows (k, c))``."""
+        pos, val, who = [], [], []
+        for b, B, na, nq, off in self.parts:
+            kf = b.F.shape[1]
+            r = kf * na + nq
+            ring, fp, i = np.nonzero(b.F[:, :, None] == f[None, None, :])
+            if ring.size == 0:
+                continue
+            v = b.s[ring, fp][:, None] * B[ring, fp, x[i], :]  # (h, na + nq)
+            base = off + ring * r
+            cols = np.concatenate([base[:, None] + fp[:, None] * na + np.arange(na),
+                                   base[:, None] + kf * na + np.arange(nq)], axis=1)
+            pos.append(cols.ravel())
+            val.append(v.ravel())
+            who.append(np.repeat(i, na + nq))
+        if not pos:
+            return np.zeros(0, dtype=np.int64), np.zeros((f.size, 0))
+        pos, val, who = np.concatenate(pos), np.concatenate(val), np.concatenate(who)
+        cols, at = np.unique(pos, return_inverse=True)
+        rows = np.zeros((f.size, cols.size))
+        np.add.at(rows, (who, at), val)
+        return cols, rows
+
+
+class RingPreconditioner:
+    """``v -> sum_r H_r^-1 v_r``: each ring's Hessian in its unknowns (:func:`~elastoplast.bounds.edges.ring_step`),
+    Jacobi-scaled with a relative ridge as the sweeps solve it, inverted once at ``t``
+    (an additive Schwarz preconditioner of the rings)."""
+
+    def __init__(self, frame: RingFrame, points, maps: ElementMaps, faces: Faces, rings, t, volumes, ctx: dict):
+        self.blocks = []
+        for b, B, na, nq, off in frame.parts:
+            _, Hr = ring_step(b, points, maps, faces, rings, t, volumes, ctx, system_only=True)
+            diag = np.einsum("mii->mi", Hr)
+            dead = ~(diag > 0)
+            ds = np.where(dead, 0.0, 1.0 / np.sqrt(np.where(dead, 1.0, diag)))
+            Hs = Hr * ds[:, :, None] * ds[:, None, :]
+            Hs[:, np.arange(Hr.shape[1]), np.arange(Hr.shape[1])] += dead + RIDGE
+            self.blocks.append((off, Hr.shape[0], Hr.shape[1], ds, np.linalg.inv(Hs)))
+
+    def __call__(self, v: np.ndarray) -> np.ndarray:
+        out = np.empty_like(v)
+        for off, m, r, ds, Hinv in self.blocks:
+            x = v[off: off + m * r].reshape(m, r) * ds
+            out[off: off + m * r] = (np.matmul(Hinv, x[..., None])[..., 0] * ds).ravel()
+        return out
+
+
+def field_energy(maps: ElementMaps, faces: Faces, t: np.ndarray, volumes: np.ndarray, ctx: dict,
+                 gradient: bool = True):
+    """``(J, dJ/dt)`` of the facet tractions ``t (F, d, d)``: the lifted field's J (elements
+    and the obstacle term ``sum psi lam`` of the Γ0 facets) and its gradient (or None).
+    The per-mesh pieces (double Piola maps, facet scales, the element-facet-vertex index)
+    are kept in ``ctx`` after the first call."""
+    M, MA, sy, H, Dv = ctx["M"], ctx["MA"], ctx["sy"], ctx["H"], ctx["Dv"]
+    Lfull = ctx["ops"][0]
+    n, d = maps.J.shape[:2]
+    d1, k, mm = d + 1, ctx["T"].shape[0], len(MANDEL_PAIRS[d])
+    if "TP" not in ctx:
+        ctx["TP"] = piola(maps, np.arange(n), ctx["T"])
+        ctx["scale"] = maps.facet_areas / reference_lift(d).areas
+        ctx["efa"] = np.nonzero(faces.slot >= 0)
+    TP, scale = ctx["TP"], ctx["scale"]
+    te = element_traction_rows(faces, t, np.arange(n))
+    that = np.matmul(te, np.swapaxes(maps.Jinv, 1, 2)[:, None]) * scale[:, :, None, None]
+    sig = np.matmul((that.reshape(n, -1) @ Lfull.T).reshape(n, d1 * d1, mm), np.swapaxes(TP, 1, 2)) + ctx["base"][:, None]
+    w = volumes / d1
+    flat = sig.reshape(n, d1, d1 * k)
+    MAs = flat @ MA.T
+    J = 0.5 * float(w @ np.einsum("nsx,nsx->n", flat, MAs))
+    c = ctx["contact"]
+    J += float((ctx["psi"][c] * t[c, :, d - 1]).sum())
+    if H > 0:
+        sig4 = sig.reshape(n, d1, d1, k)
+        vm = von_mises(sig4)
+        eta = np.maximum(vm - sy, 0.0)
+        Me = eta @ M
+        J += 0.5 / H * float(w @ np.einsum("nsb,nsb->n", eta, Me))
+    if not gradient:
+        return J, None
+    gs = MAs.reshape(n, d1 * d1, k) * w[:, None, None]
+    if H > 0:
+        nrm = np.where((eta > 0)[..., None], 1.5 * (sig4 @ Dv.T) / np.maximum(vm, 1e-300)[..., None], 0.0)
+        gs = gs + (Me[..., None] * nrm * (w / H)[:, None, None, None]).reshape(n, d1 * d1, k)
+    g_that = (np.matmul(gs, TP).reshape(n, -1) @ Lfull).reshape(n, d1, d1, d) * scale[:, :, None, None]
+    g_te = np.matmul(g_that, maps.Jinv[:, None])
+    e, i, a = ctx["efa"]
+    g = np.zeros_like(t)
+    np.add.at(g, (faces.face[e, i], faces.slot[e, i, a]), faces.sign[e, i][:, None] * g_te[e, i, a])
+    g[c, :, d - 1] += ctx["psi"][c]
+    return J, g
+
+
+def pressure_cap(t: np.ndarray, dt: np.ndarray, contact: np.ndarray, held: np.ndarray) -> float:
+    """The largest step along ``dt`` (at most 1) that keeps the Γ0 pressures ``>= 0`` (short
+    by :data:`~elastoplast.bounds.edges.LAM_MARGIN`), the ``held`` ones (:func:`pressure_projection`: they move by round-off) aside."""
+    d = t.shape[2]
+    lam, dlam = t[contact, :, d - 1], dt[contact, :, d - 1]
+    down = dlam < 0
+    roundoff = np.zeros_like(down)
+    roundoff[held[:, 0], held[:, 1]] = True
+    down &= ~(roundoff & (dlam >= -HELD_ROUNDOFF * np.abs(dlam).max(initial=0.0)))
+    if not down.any():
+        return 1.0
+    return float(min(1.0, (1.0 - LAM_MARGIN) * np.min(np.maximum(lam[down], 0.0) / -dlam[down])))
+
+
+def zero_pressures(t: np.ndarray, dt: np.ndarray, contact: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """``(k, 2)``: the (Γ0 facet, vertex) pairs not in ``held`` whose pressure is zero (at most
+    :data:`ZERO_PRESSURE` of the largest) and that ``dt`` lowers."""
+    d = t.shape[2]
+    cf = np.flatnonzero(contact)
+    lam, dlam = t[cf, :, d - 1], dt[cf, :, d - 1]
+    hit = (lam <= ZERO_PRESSURE * max(lam.max(initial=0.0), 1e-300)) & (dlam < 0)
+    hit[held[:, 0], held[:, 1]] = False
+    return np.argwhere(hit)
+
+
+def pressure_projection(frame: RingFrame, t: np.ndarray, held: np.ndarray, contact: np.ndarray):
+    """The orthogonal projection (in the ring unknowns) onto the moves that leave the
+    pressures ``held`` ((Γ0 facet, vertex) pairs) alone: ``y - Q Q^T y``, ``Q`` an
+    orthonormal basis of the rows ``B^T e`` of the held pressures (normalised; dependent
+    rows dropped), on the few ring unknowns they touch."""
+    d = t.shape[2]
+    cf = np.flatnonzero(contact)
+    cols, C = frame.unit_rows(cf[held[:, 0]], held[:, 1] * d + d - 1)
+    nrm = np.linalg.norm(C, axis=1)
+    C = C[nrm > 0] / nrm[nrm > 0, None]  # a pressure no ring moves stays anyway
+    U, sv, _ = np.linalg.svd(C.T, full_matrices=False)
+    Q = U[:, sv > HELD_RCOND * sv.max(initial=0.0)]
+
+    def proj(y):
+        y = y.copy()
+        for _ in range(2):  # once more on the remainder: the held pressures move by round-off only
+            y[cols] -= Q @ (Q.T @ y[cols])
+        return y
+
+    return proj
+
+
+def lbfgs_direction(gy: np.ndarray, S: list, Y: list, H0, proj=None) -> np.ndarray:
+    """``-P H P gy``: L-BFGS's two loops (initial inverse Hessian ``H0``, a callable) between the
+    projections ``proj`` (P, or none)."""
+    q = -(gy if proj is None else proj(gy))
+    hist = []
+    for s, yv in zip(reversed(S), reversed(Y)):
+        rho = 1.0 / float(yv @ s)
+        a = rho * float(s @ q)
+        q = q - a * yv
+        hist.append((a, rho))
+    q = H0(q)
+    if S:  # the preconditioner's scale measured by the last pair (the rings overlap: their sum over-steps)
+        q = q * (float(S[-1] @ Y[-1]) / float(Y[-1] @ H0(Y[-1])))
+    for (s, yv), (a, rho) in zip(zip(S, Y), reversed(hist)):
+        q = q + s * (a - rho * float(yv @ q))
+    return q if proj is None else proj(q)
+
+
+def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes: np.ndarray, ctx: dict,
+                  frame: RingFrame, iterations: int, progress=None) -> tuple[np.ndarray, int]:
+    """At most ``iterations`` L-BFGS steps on ``J(t + B y)`` (module docstring) with the
+    rings' Hessians as the initial inverse (:class:`RingPreconditioner`, rebuilt when the
+    memory is dropped), each step kept only where it lowers J enough (Armijo), capped so
+    that the Γ0 pressures stay ``>= 0`` and with the pressures at zero that it would lower
+    held (:func:`pressure_projection`); stops early once the predicted decrease is
+    negligible (:data:`DESCENT_RTOL`). Returns the new tractions and the steps taken;
+    ``progress(i)`` is called after step i."""
+    J, g = field_energy(maps, faces, t, volumes, ctx)
+    gy = frame.adjoint(g)
+    S, Y = [], []
+    taken = 0
+    for it in range(iterations):
+        if not S:  # (again) the rings' Hessians at this field
+            H0 = RingPreconditioner(frame, points, maps, faces, rings, t, volumes, ctx)
+        stuck = np.zeros((0, 2), dtype=np.int64)
+        proj = None
+        while True:  # the pressures at zero that the step would lower are held (projected out), until none is left
+            q = lbfgs_direction(gy, S, Y, H0, proj)
+            dt = frame.apply(q)
+            more = zero_pressures(t, dt, ctx["contact"], stuck)
+            if more.shape[0] == 0:
+                break
+            stuck = np.concatenate([stuck, more])
+            proj = pressure_projection(frame, t, stuck, ctx["contact"])
+        slope = float(gy @ q)
+        if -slope <= DESCENT_RTOL * abs(J):  # the step's predicted decrease (about -slope / 2) is negligible
+            break
+        if not slope < 0:
+            if not S:
+                break
+            S, Y = [], []
+            continue
+        alpha = pressure_cap(t, dt, ctx["contact"], stuck)
+        while alpha > 1e-12:
+            Jn, gn = field_energy(maps, faces, t + alpha * dt, volumes, ctx)
+            if Jn <= J + ARMIJO * alpha * slope:
+                break
+            # the minimiser of the quadratic through J, the slope and Jn, kept within [0.1, 0.5] alpha
+            curv = Jn - J - slope * alpha
+            alpha = float(np.clip(-slope * alpha * alpha / (2.0 * curv), 0.1 * alpha, 0.5 * alpha)) if curv > 0 \
+                else 0.5 * alpha
+        else:
+            break
+        gyn = frame.adjoint(gn)
+        s, yv = alpha * q, gyn - gy
+        if float(s @ yv) > 0:
+            S.append(s)
+            Y.append(yv)
+            S, Y = S[-MEMORY:], Y[-MEMORY:]
+        new = t + alpha * dt
+        if stuck.size:  # a held pressure keeps its value exactly (>= 0); its round-off imbalance goes to the repair
+            at = (np.flatnonzero(ctx["contact"])[stuck[:, 0]], stuck[:, 1], t.shape[2] - 1)
+            new[at] = t[at]
+        t = new
+        J, g, gy = Jn, gn, gyn
+        taken += 1
+        if progress is not None:
+            progress(it + 1)
+    return t, taken

@@ -1,0 +1,167 @@
+"""The descent of the local field over all rings together (elastoplast/bounds/frame.py).
+
+Where the numbers come from:
+* the frame spans every self-equilibrated correction: the rank of the ring corrections
+  equals the dimension of the null space of the elements' balance rows (with the
+  ``int lam = F`` row), both computed here; the balance rows come from
+  :func:`balance_matrices`, independently of the ring bases (a dimension count);
+* ``apply`` and ``adjoint`` are transposes of each other (an identity of linear maps), and
+  the held-pressure rows are columns of the adjoint;
+* J's gradient against central differences of J (second-order accurate, J is C1 with a
+  Lipschitz gradient; the step is 1e-4 of the field);
+* the projection holds the chosen pressures to round-off of the step (a projection);
+* on the quarter sphere at 162 tetrahedra the sweeps stall in the plastic zone (measured:
+  gap 73.3 after 32 sweeps, 72.5 after 512, the global program 29.5), while the descent
+  reaches the optimum of the field's space; the issue's target, the gap at most 1.5 times
+  the global program's on the same mesh, is asserted (measured 0.96 after 100 steps:
+  the composite element's space holds the program's fields, so its optimum is at least as good).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import build, cylinder_dict, sphere_quarter_dict
+
+import elastoplast as ep
+from elastoplast.bounds.edges import sweep_context
+from elastoplast.bounds.equilibrate import mesh_faces
+from elastoplast.bounds.frame import RingFrame, field_energy, pressure_projection
+from elastoplast.bounds.lift import element_maps
+from elastoplast.bounds.local import local_lower_bound
+from elastoplast.bounds.lower import solve_lower_bound
+from elastoplast.bounds.rings import mesh_rings, ring_batches
+from elastoplast.bounds.static import psi_weights
+from elastoplast.bounds.sweeps import balance_matrices
+from elastoplast.bounds.upper import best_upper_bound
+
+
+def frame_of(disc):
+    mesh, topo, d = disc.mesh, disc.facet_topology, disc.dim
+    maps = element_maps(mesh.points, mesh.cells)
+    faces = mesh_faces(mesh.cells, topo, maps.facet_areas)
+    cf = faces.n_interior + topo.contact_index
+    free = faces.unknown.copy()
+    free[cf, d - 1] = True  # the contact pressure moves with the rings
+    rings = mesh_rings(mesh.points, mesh.cells)
+    batches = ring_batches(mesh.points, mesh.cells, disc.grads, faces, rings, free)
+    frame = RingFrame(batches, mesh.points, faces, rings, d)
+    return disc, maps, faces, cf, free, rings, frame
+
+
+@pytest.fixture(scope="module")
+def quarter():
+    return frame_of(build(sphere_quarter_dict(divisions=(3, 3, 3))))
+
+
+def balance_rows(disc, maps, faces, free, cf):
+    """The elements' force and moment rows on the free traction entries, and ``int lam``."""
+    mesh, d = disc.mesh, disc.dim
+    C = balance_matrices(mesh.points, mesh.cells, maps.facet_areas)  # (n, nb, (d+1)(d+1)d)
+    n, nb = C.shape[:2]
+    nF, dd = faces.nodes.shape[0], d * d
+    A = np.zeros((n * nb + 1, nF * dd))
+    e, i, a = np.nonzero(faces.slot >= 0)
+    for j in range(d):
+        col = faces.face[e, i] * dd + faces.slot[e, i, a] * d + j
+        val = faces.sign[e, i][:, None] * C[e, :, (i * (d + 1) + a) * d + j]  # (k, nb)
+        np.add.at(A, (e[:, None] * nb + np.arange(nb), col[:, None]), val)
+    for sl in range(d):
+        A[-1, cf * dd + sl * d + d - 1] = faces.measure[cf] / d
+    mask = np.repeat(free[:, None, :], d, axis=1).reshape(-1)
+    return A[:, mask], mask
+
+
+@pytest.mark.parametrize("data", [cylinder_dict(divisions=(8, 4)), sphere_quarter_dict(divisions=(3, 3, 2))],
+                         ids=["2D", "3D"])
+def test_the_ring_frame_spans_every_self_equilibrated_correction(data):
+    disc, maps, faces, cf, free, rings, frame = frame_of(build(data))
+    d = disc.dim
+    A, mask = balance_rows(disc, maps, faces, free, cf)
+    sv = np.linalg.svd(A, compute_uv=False)
+    null_dim = mask.sum() - int((sv > sv[0] * 1e-10).sum())
+    # rank(B) = rank(B^T W) for random W on the free entries with more columns than the rank
+    rng = np.random.default_rng(0)
+    W = np.zeros((null_dim + 40, mask.size))
+    W[:, mask] = rng.normal(size=(null_dim + 40, mask.sum()))
+    C = frame.adjoint(W.reshape(-1, faces.nodes.shape[0], d, d))
+    ev = np.linalg.eigvalsh(C @ C.T)  # squares of the singular values: measured gap 1.6e-11 (2D), 4e-11 (3D) to 1e-32
+    # in 2D the contact zone lies inside the free bottom edge: moving its resultant moment needs a
+    # path through the body from the contact zone to the clamped sides, which no star holds;
+    # on the quarter sphere the contact zone touches the symmetry planes, and nothing is missing
+    missing = 1 if d == 2 else 0
+    assert int((ev > ev[-1] * 1e-13).sum()) == null_dim - missing
+    # and every ring correction is self-equilibrated on the free entries only
+    BW = np.stack([frame.apply(rng.normal(size=frame.size)).reshape(-1) for _ in range(20)], axis=1)
+    assert np.abs(BW[~mask]).max() == 0.0
+    assert np.abs(A @ BW[mask]).max() <= 1e-12 * np.abs(A).max() * np.abs(BW).max() * 10
+
+
+def test_apply_and_adjoint_are_transposes_and_unit_rows_are_adjoint_columns(quarter):
+    disc, maps, faces, cf, free, rings, frame = quarter
+    rng = np.random.default_rng(1)
+    y = rng.normal(size=frame.size)
+    g = rng.normal(size=(faces.nodes.shape[0], 3, 3))
+    lhs, rhs = float((frame.apply(y) * g).sum()), float(y @ frame.adjoint(g))
+    assert lhs == pytest.approx(rhs, rel=1e-12)
+    f, x = cf[[0, 0, 1, 1]], np.array([2, 5, 8, 5])
+    cols, rows = frame.unit_rows(f, x)
+    E = np.zeros((4,) + g.shape)
+    E.reshape(4, -1, 9)[np.arange(4), f, x] = 1.0
+    full = frame.adjoint(E)
+    assert np.array_equal(full[:, cols], rows)
+    rest = np.ones(frame.size, dtype=bool)
+    rest[cols] = False
+    assert np.abs(full[:, rest]).max() == 0.0
+
+
+def _context(disc, faces, cf):
+    """J's context with the problem's obstacle weights on the Γ0 facets."""
+    d = disc.dim
+    psi = np.zeros((faces.nodes.shape[0], d))
+    psi[cf] = psi_weights(disc, disc.facet_topology).q
+    contact = np.zeros(faces.nodes.shape[0], dtype=bool)
+    contact[cf] = True
+    return sweep_context(disc.material, faces, disc.n_elements, d, None, psi, contact)
+
+
+def test_field_energy_gradient_matches_central_differences(quarter):
+    disc, maps, faces, cf, free, rings, frame = quarter
+    ctx = _context(disc, faces, cf)
+    rng = np.random.default_rng(2)
+    t = rng.normal(size=(faces.nodes.shape[0], 3, 3)) * disc.material.yield_stress * 1.5  # a plastic state
+    J, g = field_energy(maps, faces, t, disc.volumes, ctx)
+    dt = frame.apply(rng.normal(size=frame.size))
+    h = 1e-4 * np.abs(t).max() / np.abs(dt).max()
+    Jp, _ = field_energy(maps, faces, t + h * dt, disc.volumes, ctx, gradient=False)
+    Jm, _ = field_energy(maps, faces, t - h * dt, disc.volumes, ctx, gradient=False)
+    assert (Jp - Jm) / (2 * h) == pytest.approx(float((g * dt).sum()), rel=1e-6)
+
+
+def test_the_projection_holds_the_chosen_pressures(quarter):
+    disc, maps, faces, cf, free, rings, frame = quarter
+    t = np.zeros((faces.nodes.shape[0], 3, 3))
+    held = np.array([[0, 0], [0, 1], [1, 2]])
+    contact = np.zeros(faces.nodes.shape[0], dtype=bool)
+    contact[cf] = True
+    proj = pressure_projection(frame, t, held, contact)
+    rng = np.random.default_rng(3)
+    dt = frame.apply(proj(rng.normal(size=frame.size)))
+    moved = dt[cf[held[:, 0]], held[:, 1], 2]
+    assert np.abs(moved).max() <= 1e-13 * np.abs(dt[cf, :, 2]).max()
+    assert np.abs(dt[cf, :, 2]).max() > 0  # the other pressures still move
+
+
+def test_the_descent_reaches_the_program_where_the_sweeps_stall(quarter):
+    disc = quarter[0]
+    sol = ep.solve(disc, "newton")
+    up = best_upper_bound(disc, sol, method="newton")
+    swept = local_lower_bound(disc, sol, 8, descent=0)
+    lb = local_lower_bound(disc, sol, 8, descent=300)
+    glob = solve_lower_bound(disc)
+    assert lb.certified and swept.certified and glob.certified and up.certified
+    assert lb.J <= swept.J  # the descent only takes steps that lower J
+    assert np.all(lb.field.lam >= 0)
+    assert lb.lower <= up.Pi
+    assert up.Pi - lb.lower <= 1.5 * (up.Pi - glob.lower)
+    assert up.Pi - swept.lower > 2.0 * (up.Pi - glob.lower)  # the stall this descent exists for

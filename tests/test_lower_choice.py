@@ -207,3 +207,29 @@ def test_help_documents_the_choice(capsys):
         text = " ".join(capsys.readouterr().out.split())
         assert "--lower {auto,local,global}" in text and "'auto' (default)" in text
         assert f"{AUTO_GLOBAL_MAX_ELEMENTS[3]:,} tetrahedra" in text
+
+
+def test_the_descent_option_reaches_the_local_bound(tmp_path, capsys):
+    """``--descent`` sets the local bound's steps over all rings (bounds and adapt); a bad
+    count is refused naming the flag. The count taken is read back from the bound's message
+    (the descent may stop earlier, never later)."""
+    problem = write_toml(tmp_path / "p.toml", cylinder_dict(divisions=(10, 5)))
+    seen = {}
+    for steps in (0, 3):
+        out = tmp_path / f"b{steps}"
+        code = main(["bounds", str(problem), "--method", "newton", "--lower", "local", "--descent", str(steps),
+                     "--no-bracket", "--quiet", "--out", str(out)])
+        capsys.readouterr()
+        summary = json.loads((out / "summary.json").read_text())
+        assert code == 0 and summary["bounds_certified"]
+        seen[steps] = summary["lower_bound"]
+    assert "descent step" not in seen[0]["message"]
+    taken = int(seen[3]["message"].split(" descent step")[0].rsplit(" ", 1)[1])
+    assert 1 <= taken <= 3
+    for command in ("bounds", "adapt"):
+        for bad in ("x", "-1"):
+            code = main([command, str(problem), "--descent", bad, "--quiet", "--out", str(tmp_path / command)])
+            err = capsys.readouterr().err
+            assert code == 2 and "--descent" in err and bad in err and "Traceback" not in err, err
+    options = LowerBoundOptions(descent=0)
+    assert options.descent == 0 and LowerBoundOptions().descent is None

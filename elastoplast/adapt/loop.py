@@ -128,7 +128,7 @@ def _solve(disc: Discretization, options: AdaptOptions, start: Solution | None, 
 def _lower_options(options: AdaptOptions):
     from elastoplast.bounds.lower import LowerBoundOptions
 
-    return LowerBoundOptions(max_elements=options.lower_max_elements, kind=options.lower)
+    return LowerBoundOptions(max_elements=options.lower_max_elements, kind=options.lower, descent=options.lower_descent)
 
 
 def _solve_tol(disc: Discretization, options: AdaptOptions) -> float:

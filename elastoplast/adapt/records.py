@@ -28,6 +28,8 @@ class AdaptOptions(SolverOptions):
     ``lower_max_elements``: the lower bound's size limit (None: the global program's
     :data:`~elastoplast.bounds.lower.LOWER_BOUND_MAX_ELEMENTS`, none for the local bound
     but its memory); the loop never builds a mesh above it or above ``max_elements``.
+    ``lower_descent``: the local bound's descent steps over all rings
+    (:attr:`~elastoplast.bounds.lower.LowerBoundOptions.descent`).
     """
 
     max_iter: int = option(30, int, "most meshes solved (adaptive steps)", lo=1, hi=200)
@@ -46,6 +48,8 @@ class AdaptOptions(SolverOptions):
                                             hi=100_000_000, none=True)
     lower: str = option("auto", str, "the lower bound: the global program, the local field, or auto (by mesh size)",
                         choices=("auto", "local", "global"))
+    lower_descent: int | None = option(None, int, "the local bound's descent steps (none: its default)", lo=0,
+                                       hi=100_000, none=True)
 
 
 @dataclass(frozen=True)

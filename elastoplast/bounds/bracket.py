@@ -316,7 +316,7 @@ def lower_bound(disc: Discretization, solution=None, options=None, *, progress: 
             progress(0.0, f"lower bound: local field ({disc.n_elements:,} elements)")
         from elastoplast.bounds.local import local_lower_bound
 
-        lower = local_lower_bound(disc, solution, progress=progress)
+        lower = local_lower_bound(disc, solution, descent=options.descent, progress=progress)
     if progress is not None:
         progress(1.0, "lower bound done")
     return lower

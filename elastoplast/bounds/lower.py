@@ -121,7 +121,8 @@ class LowerBoundOptions(SolverOptions):
     only one with H = 0), ``"local"`` (:func:`~elastoplast.bounds.local.local_lower_bound`,
     built from the P1 solution, H > 0) or ``"auto"`` (:func:`lower_bound_kind`). The
     options above but ``tol`` are the global program's; its size and memory refusals
-    (:func:`check_lower_bound_size`) apply to it alone.
+    (:func:`check_lower_bound_size`) apply to it alone. ``descent``: the local bound's
+    steps over all rings after its sweeps (None: :data:`~elastoplast.bounds.local.DESCENT_STEPS`).
     """
 
     tol: float = option(CERTIFY_TOL, float, "tolerance of the admissibility certificate", lo=TIGHTEST_TOL, hi=1e-8)
@@ -139,6 +140,8 @@ class LowerBoundOptions(SolverOptions):
     scs_max_iter: int = option(100_000, int, "SCS's iteration limit", lo=1, hi=10_000_000)
     kind: str = option("auto", str, "which lower bound: the global program, the local field, or auto",
                        choices=LOWER_BOUND_KINDS)
+    descent: int | None = option(None, int, "the local bound's descent steps over all rings after its sweeps "
+                                 "(none: local.DESCENT_STEPS)", lo=0, hi=100_000, none=True)
 
 
 #: 3D meshes from this many elements use Clarabel's faer factorisation, smaller ones and

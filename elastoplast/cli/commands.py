@@ -160,9 +160,9 @@ def _bounds(args: argparse.Namespace) -> int:
     path, data, method, opts = _setup(args)
     refuse_path(data, "bounds")
     disc = _discretize(path, data, args.quiet, f"P1 solution by {method}, then the bounds")
-    lower_options = LowerBoundOptions(kind=args.lower or "auto")
     # before the solve; the U bracket runs two more lower bounds in this process
     with _lower_flag():
+        lower_options = LowerBoundOptions.build({"kind": args.lower or "auto", "descent": args.descent})
         kind = check_lower_bound_fits(disc, lower_options, factor=1.0 if args.no_bracket else SEQUENCE_MEMORY_FACTOR)
     check_solvable(disc, method, opts)
     sol = solve(disc, method, opts)
@@ -189,12 +189,14 @@ def _bounds(args: argparse.Namespace) -> int:
 
 @contextlib.contextmanager
 def _lower_flag() -> Iterator[None]:
-    """Name the lower-bound choice by its flag (``--lower``)."""
+    """Name the lower-bound options by their flags (``--lower``, ``--descent``)."""
     try:
         yield
     except InputError as exc:
         if exc.field in ("kind", "lower_options.kind"):
             raise InputError("--lower", exc.message) from None
+        if exc.field in ("descent", "lower_options.descent"):
+            raise InputError("--descent", exc.message) from None
         raise
 
 
@@ -272,7 +274,8 @@ def _adapt(args: argparse.Namespace) -> int:
     from_file = {"tol": table["tol"]} if "tol" in table else {}
     AdaptOptions.build(from_file, prefix="solver.")  # the range of adapt's P1 tolerance, named as written
     given = {k: v for k, v in (("rtol", args.rtol), ("theta", args.theta), ("max_elements", args.max_elements),
-                               ("time_limit", args.time_limit), ("bracket", args.bracket), ("lower", args.lower))
+                               ("time_limit", args.time_limit), ("bracket", args.bracket), ("lower", args.lower),
+                               ("lower_descent", args.descent))
              if v is not None}
     given = {**from_file, **given}
     if args.no_uniform:
@@ -280,8 +283,8 @@ def _adapt(args: argparse.Namespace) -> int:
     try:
         options = AdaptOptions.build({**given, "method": method, "progress": not args.quiet})
     except InputError as exc:
-        field = method_field if exc.field == "method" else f"--{exc.field.replace('_', '-')}"
-        raise InputError(field, exc.message) from None
+        flags = {"method": method_field, "lower_descent": "--descent"}
+        raise InputError(flags.get(exc.field, f"--{exc.field.replace('_', '-')}"), exc.message) from None
     disc = _discretize(path, data, args.quiet, f"adaptive refinement to rtol {options.rtol:g}")
     check_adaptable(disc.problem)
     return EXIT_OK if run_adapt_command(disc.problem, options, args.out) else EXIT_NOT_CONVERGED

@@ -147,6 +147,7 @@ def _add_solver_arguments(p: argparse.ArgumentParser, time_help: str = "wall-clo
 
 
 def _add_lower_argument(p: argparse.ArgumentParser) -> None:
+    from elastoplast.bounds.local import DESCENT_STEPS
     from elastoplast.bounds.lower import AUTO_GLOBAL_MAX_ELEMENTS, LOWER_BOUND_KINDS
 
     p.add_argument("--lower", choices=LOWER_BOUND_KINDS,
@@ -157,6 +158,10 @@ def _add_lower_argument(p: argparse.ArgumentParser) -> None:
                         "hardening = 0 and up to "
                         f"{AUTO_GLOBAL_MAX_ELEMENTS[2]:,} triangles or {AUTO_GLOBAL_MAX_ELEMENTS[3]:,} tetrahedra, "
                         "local above")
+    p.add_argument("--descent", type=int, metavar="STEPS",
+                   help="the local lower bound's steps over all patches together after its sweeps (default: "
+                        f"{DESCENT_STEPS[2]}; 0: the sweeps alone, faster on large 3D meshes; more: tighter where "
+                        "plastic zones stall the sweeps)")
 
 
 def _add_dask_arguments(p: argparse.ArgumentParser) -> None:

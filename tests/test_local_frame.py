@@ -165,3 +165,20 @@ def test_the_descent_reaches_the_program_where_the_sweeps_stall(quarter):
     assert lb.lower <= up.Pi
     assert up.Pi - lb.lower <= 1.5 * (up.Pi - glob.lower)
     assert up.Pi - swept.lower > 2.0 * (up.Pi - glob.lower)  # the stall this descent exists for
+
+
+def test_the_descent_stops_early_when_its_gains_are_small_against_the_gap(quarter):
+    """With an upper bound far above (a huge gap) every window of steps gains little against
+    it, so the descent stops after DESCENT_WINDOW steps; without one, or with an infinite one
+    (no gap to compare with), it runs on."""
+    from elastoplast.bounds.frame import DESCENT_WINDOW
+
+    disc = quarter[0]
+    sol = ep.solve(disc, "newton")
+    free_run = local_lower_bound(disc, sol, 8, descent=60)
+    far = local_lower_bound(disc, sol, 8, descent=60, upper=1e12)
+    endless = local_lower_bound(disc, sol, 8, descent=60, upper=float("inf"))
+    assert far.timings["descent_steps"] == DESCENT_WINDOW
+    assert free_run.timings["descent_steps"] > DESCENT_WINDOW
+    assert endless.timings["descent_steps"] == free_run.timings["descent_steps"] and endless.J == free_run.J
+    assert far.certified and far.J >= free_run.J

@@ -165,7 +165,7 @@ def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solu
         from elastoplast.bounds.bracket import local_solution
 
         sol = local_solution(disc, sol, options.method)
-    lower = lower_bound(disc, sol, lower_options)
+    lower = lower_bound(disc, sol, lower_options, upper=upper.Pi)
     t2 = time.perf_counter()
     b = combine(upper, lower)
     row = Step(step=step, n_elements=disc.n_elements, n_nodes=disc.mesh.n_nodes, energy_lower=b.energy_lower,

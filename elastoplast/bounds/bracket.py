@@ -287,7 +287,8 @@ def check_lower_bound_fits(disc: Discretization, options=None, factor: float = 1
     return kind
 
 
-def lower_bound(disc: Discretization, solution=None, options=None, *, progress: Progress | None = None):
+def lower_bound(disc: Discretization, solution=None, options=None, *, progress: Progress | None = None,
+                upper: float | None = None):
     """The certified lower bound ``-J <= Pi*`` on ``disc`` that ``options.kind`` chooses
     (:class:`~elastoplast.bounds.lower.LowerBoundOptions`, or a mapping of them;
     :func:`~elastoplast.bounds.lower.lower_bound_kind`): the optimum of the equilibrium
@@ -295,7 +296,9 @@ def lower_bound(disc: Discretization, solution=None, options=None, *, progress: 
     local field built from ``solution``, a P1 solution of ``disc``
     (:func:`~elastoplast.bounds.local.local_lower_bound`; H > 0). Either is a
     :class:`~elastoplast.bounds.lower.LowerBound`; its ``solver`` is ``"local"`` for the local
-    bound. ``progress(fraction, what)`` is called as the bound advances."""
+    bound. ``progress(fraction, what)`` is called as the bound advances; ``upper``, the Pi of
+    an upper bound on ``disc``, lets the local bound's descent stop once it gains little
+    against the gap."""
     import elastoplast.bounds.lower as global_bound
     from elastoplast.certificate.solution import Solution
 
@@ -316,7 +319,7 @@ def lower_bound(disc: Discretization, solution=None, options=None, *, progress: 
             progress(0.0, f"lower bound: local field ({disc.n_elements:,} elements)")
         from elastoplast.bounds.local import local_lower_bound
 
-        lower = local_lower_bound(disc, solution, descent=options.descent, progress=progress)
+        lower = local_lower_bound(disc, solution, descent=options.descent, progress=progress, upper=upper)
     if progress is not None:
         progress(1.0, "lower bound done")
     return lower
@@ -414,7 +417,7 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
         if part is not None and not (sol.converged and sol.kkt.worst <= LOCAL_SOLVE_TOL):
             part(0.0, f"P1 solution to tol {LOCAL_SOLVE_TOL:g} for the local bound")
         sol = local_solution(disc, sol, method, **options)
-    lower = lower_bound(disc, sol, lower_options, progress=part)
+    lower = lower_bound(disc, sol, lower_options, progress=part, upper=upper.Pi)
     t2 = time.perf_counter()
     timings.update(upper=t1 - t0, lower=t2 - t1)
     b = combine(upper, lower)

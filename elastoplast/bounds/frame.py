@@ -30,6 +30,10 @@ from elastoplast.fem.material import von_mises
 MEMORY = 10
 #: the descent stops once a step's predicted decrease of J is below this share of |J|
 DESCENT_RTOL = 1e-6
+#: with the upper bound known, the descent stops once its last DESCENT_WINDOW steps lowered J
+#: by less than DESCENT_GAP_SHARE of the gap per step on average
+DESCENT_WINDOW = 10
+DESCENT_GAP_SHARE = 1e-3
 #: Armijo's sufficient decrease
 ARMIJO = 1e-4
 #: a pressure at most this share of the largest counts as zero (its decrease is projected out)
@@ -249,18 +253,23 @@ def lbfgs_direction(gy: np.ndarray, S: list, Y: list, H0, proj=None) -> np.ndarr
 
 
 def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes: np.ndarray, ctx: dict,
-                  frame: RingFrame, iterations: int, progress=None) -> tuple[np.ndarray, int]:
+                  frame: RingFrame, iterations: int, progress=None, upper: float | None = None) -> tuple[np.ndarray, int]:
     """At most ``iterations`` L-BFGS steps on ``J(t + B y)`` (module docstring) with the
     rings' Hessians as the initial inverse (:class:`RingPreconditioner`, rebuilt when the
     memory is dropped), each step kept only where it lowers J enough (Armijo), capped so
     that the Γ0 pressures stay ``>= 0`` and with the pressures at zero that it would lower
     held (:func:`pressure_projection`); stops early once the predicted decrease is
-    negligible (:data:`DESCENT_RTOL`). Returns the new tractions and the steps taken;
-    ``progress(i)`` is called after step i."""
+    negligible (:data:`DESCENT_RTOL`), or, given the ``upper`` bound of the same problem
+    (``Pi``; the gap is ``upper + J``), once the last :data:`DESCENT_WINDOW` steps lowered J
+    by less than :data:`DESCENT_GAP_SHARE` of the gap each on average. Returns the new
+    tractions and the steps taken; ``progress(i)`` is called after step i."""
     J, g = field_energy(maps, faces, t, volumes, ctx)
     gy = frame.adjoint(g)
     S, Y = [], []
     taken = 0
+    history = [J]
+    if upper is not None and not np.isfinite(upper):
+        upper = None  # no gap to measure the gains against
     for it in range(iterations):
         if not S:  # (again) the rings' Hessians at this field
             H0 = RingPreconditioner(frame, points, maps, faces, rings, t, volumes, ctx)
@@ -306,6 +315,10 @@ def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray,
         t = new
         J, g, gy = Jn, gn, gyn
         taken += 1
+        history.append(J)
         if progress is not None:
             progress(it + 1)
+        if upper is not None and taken >= DESCENT_WINDOW and \
+                history[-1 - DESCENT_WINDOW] - J < DESCENT_WINDOW * DESCENT_GAP_SHARE * (upper + J):
+            break  # what the steps still gain is small against the gap
     return t, taken

@@ -82,11 +82,11 @@ class LocalField:
 
 
 def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: np.ndarray,
-                       n_sweeps: int = 0, progress=None, descent: int = 0) -> LocalField:
+                       n_sweeps: int = 0, progress=None, descent: int = 0, upper: float | None = None) -> LocalField:
     """Steps 1-3 and 5 of the module docstring from the discrete stresses ``sigma (n, k)``
     in nodal balance with the contact forces ``contact_force`` (per contact node);
     ``n_sweeps`` ring sweeps, then at most ``descent`` steps over all rings together
-    (step 4; both need ``n_sweeps > 0``)."""
+    (step 4; both need ``n_sweeps > 0``; ``upper``: :func:`~elastoplast.bounds.frame.frame_descent`'s)."""
     t0 = time.perf_counter()
     timings = {}
     d, m = disc.dim, disc.material
@@ -155,7 +155,8 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
                 report(0.5 + 0.4 * i / descent, f"descent step {i} of at most {descent}")
 
             t, timings["descent_steps"] = frame_descent(mesh.points, maps, faces, rings, t, disc.volumes, ctx,
-                                                        RingFrame(batches, mesh.points, faces, rings, d), descent, stepped)
+                                                        RingFrame(batches, mesh.points, faces, rings, d), descent, stepped,
+                                                        upper)
             timings["descent"] = time.perf_counter() - t1
         t1 = time.perf_counter()
         # the repair leaves the pressure alone (lam >= 0 stays exact): interior and prescribed-free components only
@@ -284,7 +285,8 @@ LOCAL_SWEEPS = {2: 64, 3: 32}
 #: sweeps, 5.1 with 100 steps after them, 1.30 with 300; default 3D problem 12,288: 1.48,
 #: 1.41 (+133 s), 1.69 after 8 sweeps and 300 steps (+364 s: one step costs about half a
 #: sweep, and the steps needed grow with the mesh); 2D cylinder 25,600: 1.28 after 64
-#: sweeps, 0.99 with 100 steps (47 s against the program's 64 s)
+#: sweeps, 0.99 with 100 steps (47 s against the program's 64 s). Given the upper bound,
+#: the descent also stops when it gains little against the gap (frame.DESCENT_GAP_SHARE)
 DESCENT_STEPS = {2: 100, 3: 100}
 
 
@@ -294,7 +296,7 @@ def local_sweeps(dim: int) -> int:
 
 
 def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = None, *, descent: int | None = None,
-                      progress=None):
+                      progress=None, upper: float | None = None):
     """The certified lower bound ``-J <= Pi*`` of the locally built field (module
     docstring) from a P1 ``solution`` of ``disc`` (its stresses and contact forces), as a
     :class:`~elastoplast.bounds.lower.LowerBound`: ``field`` lives on the split mesh,
@@ -303,7 +305,9 @@ def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = Non
     ``solver`` is ``"local"``. Needs H > 0 (with H = 0 no local construction is known to
     stay within the yield surface: use :func:`~elastoplast.bounds.lower.solve_lower_bound`).
     ``n_sweeps`` ring sweeps (default :func:`local_sweeps` of the dimension), then at most
-    ``descent`` steps over all rings together (default :data:`DESCENT_STEPS`; 0: none). ``progress``, if given, is called as
+    ``descent`` steps over all rings together (default :data:`DESCENT_STEPS`; 0: none; with
+    ``upper``, the upper bound's Pi on ``disc``, it stops once it gains little against the
+    gap: :func:`~elastoplast.bounds.frame.frame_descent`). ``progress``, if given, is called as
     ``progress(fraction, what)`` after each phase, sweep and step (fraction in [0, 1])."""
     from elastoplast.bounds.lower import LowerBound
     from elastoplast.certificate.solution import Solution, Status
@@ -325,7 +329,7 @@ def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = Non
 
     with one_blas_thread():  # small dense blocks: a second BLAS thread spin-waits for a busy core (measured 10x slower)
         lf = equilibrated_field(disc, solution.sigma, solution.contact_force, n_sweeps, progress=report,
-                                descent=descent)
+                                descent=descent, upper=upper)
     sd = lf.split.disc
     t1 = time.perf_counter()
     psi = psi_weights(sd, sd.facet_topology)

@@ -204,12 +204,8 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
     cidx = np.concatenate([jpos[:, :1] * na + np.arange(na), jpos[:, 1:] * na + np.arange(na),
                            np.broadcast_to(kf * na + np.arange(nq), (N, nq))], axis=1)  # (N, re)
     # current stresses
-    te = element_traction_rows(faces, t, flat)
-    that = np.matmul(te, np.swapaxes(Jinv, 1, 2)[:, None]) * (maps.facet_areas[flat] / ref.areas)[:, :, None, None]
-    Sig = (that.reshape(N, -1) @ Lfull.T).reshape(N, d1 * d1, mm)
     TP = piola(maps, flat, T)
-    base = ctx["base"][flat][:, None, :]
-    sig = np.matmul(Sig, np.swapaxes(TP, 1, 2)) + base  # (N, s b, k)
+    sig = lifted_stresses(maps, faces, t, flat, TP, maps.facet_areas[flat] / ref.areas, ctx)  # (N, s b, k)
     sig4 = sig.reshape(N, d1, d1, k)
     J0 = element_energy(sig4, w, MA, M, sy, H).reshape(m_r, ke).sum(axis=1)
     gs = (sig.reshape(N, d1, d1 * k) @ MA.T).reshape(N, d1 * d1, k) * w[:, None, None]
@@ -260,11 +256,7 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
     Hr = np.bincount(hidx.ravel(), He.ravel(), minlength=m_r * r * r).reshape(m_r, r, r)
     if system_only:
         return gr, Hr
-    diag = np.einsum("mii->mi", Hr)
-    dead = ~(diag > 0)
-    ds = np.where(dead, 1.0, 1.0 / np.sqrt(np.where(dead, 1.0, diag)))
-    Hs = Hr * ds[:, :, None] * ds[:, None, :]
-    Hs[:, np.arange(r), np.arange(r)] += dead + RIDGE
+    ds, Hs, dead = scaled_system(Hr)
     y = -ds * np.linalg.solve(Hs, (gr * ds)[..., None])[..., 0]
     y[dead] = 0.0
     ye = y[ring[:, None], cidx]  # (N, re)
@@ -275,8 +267,7 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
         if idx.size:
             dSig[idx] = dth[idx] @ Lsel[v].T
     dsig = np.matmul(dSig.reshape(N, d1 * d1, mm), np.swapaxes(TP, 1, 2))
-    yf = np.concatenate([y[:, :kf * na].reshape(m_r, kf, na), np.broadcast_to(y[:, None, kf * na:], (m_r, kf, nq))], axis=2)
-    dtau = np.matmul(B, yf[..., None])[..., 0]  # (m, kf, dd): the change of each ring face per unit step
+    dtau = ring_corrections(B, y, nq)  # (m, kf, dd): the change of each ring face per unit step
     cap = np.ones(m_r)
     lin = np.zeros(m_r)
     if has_c:  # the pressure stays >= 0 at the vertices of the Γ0 faces: the step is capped
@@ -306,6 +297,41 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
     ok = b.F >= 0
     t.reshape(t.shape[0], -1)[b.F[ok]] += (b.s[..., None] * dtau)[ok]
     return gain
+
+
+def ring_corrections(B: np.ndarray, y: np.ndarray, nq: int) -> np.ndarray:
+    """``(m, kf, d d)``: each ring face's traction change ``B (alpha_f, q)`` for the rings'
+    unknowns ``y (m, kf na + nq)`` (its faces' ``alpha``, then the ring's ``q``; ``B`` from
+    :func:`ring_face_bases`)."""
+    m, kf = B.shape[:2]
+    na = B.shape[3] - nq
+    yf = np.concatenate([y[:, :kf * na].reshape(m, kf, na), np.broadcast_to(y[:, None, kf * na:], (m, kf, nq))], axis=2)
+    return np.matmul(B, yf[..., None])[..., 0]
+
+
+def scaled_system(Hr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(ds, Hs, dead)``: the rings' Hessians ``Hr (m, r, r)`` Jacobi-scaled (``Hs = D Hr D``,
+    ``D = diag(ds)``) with the relative :data:`RIDGE` on the diagonal, and the unknowns
+    without curvature (``dead``: unit diagonal in ``Hs``, ``ds`` 1; their step is zero)."""
+    r = Hr.shape[1]
+    diag = np.einsum("mii->mi", Hr)
+    dead = ~(diag > 0)
+    ds = np.where(dead, 1.0, 1.0 / np.sqrt(np.where(dead, 1.0, diag)))
+    Hs = Hr * ds[:, :, None] * ds[:, None, :]
+    Hs[:, np.arange(r), np.arange(r)] += dead + RIDGE
+    return ds, Hs, dead
+
+
+def lifted_stresses(maps: ElementMaps, faces: Faces, t: np.ndarray, E: np.ndarray, TP: np.ndarray,
+                    scale: np.ndarray, ctx: dict) -> np.ndarray:
+    """``(N, (d+1)^2, k)``: the sub-vertex stresses of the elements ``E`` lifted from the facet
+    tractions ``t`` (their double Piola maps ``TP`` (:func:`piola`), facet scales ``scale
+    (N, d+1)``: physical over reference facet measures; plus ``ctx["base"]``)."""
+    N, d1 = E.size, maps.J.shape[1] + 1
+    that = np.matmul(element_traction_rows(faces, t, E), np.swapaxes(maps.Jinv[E], 1, 2)[:, None]) \
+        * scale[:, :, None, None]
+    Sig = (that.reshape(N, -1) @ ctx["ops"][0].T).reshape(N, d1 * d1, -1)
+    return np.matmul(Sig, np.swapaxes(TP, 1, 2)) + ctx["base"][E][:, None, :]
 
 
 def element_traction_rows(faces: Faces, t: np.ndarray, E: np.ndarray) -> np.ndarray:

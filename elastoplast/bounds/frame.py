@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from elastoplast.bounds.edges import (LAM_MARGIN, RIDGE, element_traction_rows, piola, ring_face_bases,
-                                      ring_step)
+from elastoplast.bounds.edges import (LAM_MARGIN, lifted_stresses, piola, ring_corrections, ring_face_bases,
+                                      ring_step, scaled_system)
 from elastoplast.bounds.equilibrate import Faces
-from elastoplast.bounds.lift import MANDEL_PAIRS, ElementMaps, reference_lift
+from elastoplast.bounds.lift import ElementMaps, reference_lift
 from elastoplast.bounds.rings import RingBatch
 from elastoplast.fem.material import von_mises
 
@@ -68,10 +68,7 @@ class RingFrame:
         dt = np.zeros((self.n_faces, d * d))
         for b, B, na, nq, off in self.parts:
             m, kf = b.F.shape
-            Y = y[off: off + m * (kf * na + nq)].reshape(m, -1)
-            yf = np.concatenate([Y[:, :kf * na].reshape(m, kf, na), np.broadcast_to(Y[:, None, kf * na:], (m, kf, nq))],
-                                axis=2)
-            dtau = np.matmul(B, yf[..., None])[..., 0]
+            dtau = ring_corrections(B, y[off: off + m * (kf * na + nq)].reshape(m, -1), nq)
             ok = b.F >= 0
             dt[b.F[ok]] += (b.s[..., None] * dtau)[ok]  # rings of one batch share no facet
         return dt.reshape(self.n_faces, d, d)
@@ -127,12 +124,8 @@ class RingPreconditioner:
         self.blocks = []
         for b, B, na, nq, off in frame.parts:
             _, Hr = ring_step(b, points, maps, faces, rings, t, volumes, ctx, system_only=True)
-            diag = np.einsum("mii->mi", Hr)
-            dead = ~(diag > 0)
-            ds = np.where(dead, 0.0, 1.0 / np.sqrt(np.where(dead, 1.0, diag)))
-            Hs = Hr * ds[:, :, None] * ds[:, None, :]
-            Hs[:, np.arange(Hr.shape[1]), np.arange(Hr.shape[1])] += dead + RIDGE
-            self.blocks.append((off, Hr.shape[0], Hr.shape[1], ds, np.linalg.inv(Hs)))
+            ds, Hs, dead = scaled_system(Hr)
+            self.blocks.append((off, Hr.shape[0], Hr.shape[1], np.where(dead, 0.0, ds), np.linalg.inv(Hs)))
 
     def __call__(self, v: np.ndarray) -> np.ndarray:
         out = np.empty_like(v)
@@ -151,15 +144,13 @@ def field_energy(maps: ElementMaps, faces: Faces, t: np.ndarray, volumes: np.nda
     M, MA, sy, H, Dv = ctx["M"], ctx["MA"], ctx["sy"], ctx["H"], ctx["Dv"]
     Lfull = ctx["ops"][0]
     n, d = maps.J.shape[:2]
-    d1, k, mm = d + 1, ctx["T"].shape[0], len(MANDEL_PAIRS[d])
+    d1, k = d + 1, ctx["T"].shape[0]
     if "TP" not in ctx:
         ctx["TP"] = piola(maps, np.arange(n), ctx["T"])
         ctx["scale"] = maps.facet_areas / reference_lift(d).areas
         ctx["efa"] = np.nonzero(faces.slot >= 0)
     TP, scale = ctx["TP"], ctx["scale"]
-    te = element_traction_rows(faces, t, np.arange(n))
-    that = np.matmul(te, np.swapaxes(maps.Jinv, 1, 2)[:, None]) * scale[:, :, None, None]
-    sig = np.matmul((that.reshape(n, -1) @ Lfull.T).reshape(n, d1 * d1, mm), np.swapaxes(TP, 1, 2)) + ctx["base"][:, None]
+    sig = lifted_stresses(maps, faces, t, np.arange(n), TP, scale, ctx)
     w = volumes / d1
     flat = sig.reshape(n, d1, d1 * k)
     MAs = flat @ MA.T

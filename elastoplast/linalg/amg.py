@@ -296,6 +296,8 @@ class FaceSystems:
         self._raw = self._V = self._HV = None
         self._kept = self._slot = 0
         self._for: BorderedSystem | None = None
+        self._for_face: tuple | None = None  # (matrix values, c, fixed dofs) of _for's face (_carry_over)
+        self._crow_of: np.ndarray | None = None  # each dof's contact row, -1 elsewhere (_crow_index)
         self._valid: set[int] = set()
         self.ec = np.zeros(lay.n_dofs)
         self.ec[free_index[cdofs]] = 1.0
@@ -490,7 +492,7 @@ class FaceSystems:
         columns for all columns instead of a product by ``H`` each (8 a new face; measured
         at 375k tetrahedra: 3.1 s of Uzawa's 64 s). Equal to the products to rounding.
         Returns the columns that are valid for ``system`` (none when it cannot carry them)."""
-        face = getattr(self, "_for_face", None)
+        face = self._for_face
         if self._for is None or face is None or face[0] is not self.data or face[1] != self.c or not self._valid:
             return set()
         was = face[2]
@@ -519,7 +521,7 @@ class FaceSystems:
 
     def _crow_index(self) -> np.ndarray:
         """For each dof its row in the contact rows, -1 elsewhere."""
-        if getattr(self, "_crow_of", None) is None:
+        if self._crow_of is None:
             self._crow_of = np.full(self.lay.n_dofs + 1, -1, dtype=np.int64)
             self._crow_of[self.crows] = np.arange(self.crows.size)
         return self._crow_of[:-1]

@@ -61,12 +61,17 @@ def solve_alone(params: dict, divisions=(12, 6), solver: dict | None = None):
     return disc, ep.solve(disc, method, **settings)
 
 
-def index_rows(out: Path) -> list[dict]:
+def index_rows(out: Path, while_running: bool = False) -> list[dict]:
+    """The stored cases' rows. ``while_running``: polled while the campaign starts, when the
+    index file may exist before its table does (no rows yet, not an error)."""
     if not (out / "index.sqlite").is_file():
         return []
     con = sqlite3.connect(out / "index.sqlite", timeout=30)
     con.row_factory = sqlite3.Row
     try:
+        table = con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'cases'").fetchone()
+        if while_running and table is None:
+            return []
         return [dict(r) for r in con.execute("SELECT * FROM cases")]
     finally:
         con.close()
@@ -258,7 +263,7 @@ def test_sigkill_mid_campaign_then_rerun_completes_each_case_once(tmp_path, caps
                             env={**os.environ, "DASK_TEMPORARY_DIRECTORY": str(tmp_path / "dask")})
     try:
         deadline = time.monotonic() + 90
-        while len(index_rows(out)) < 2:
+        while len(index_rows(out, while_running=True)) < 2:
             assert proc.poll() is None, (tmp_path / "first.log").read_text()
             assert time.monotonic() < deadline, "no case finished in time"
             time.sleep(0.02)

@@ -101,10 +101,12 @@ class _Bounded:
     bounds: Bounds
 
 
-def _solve(disc: Discretization, options: AdaptOptions, start: Solution | None, required: bool = True) -> Solution | None:
+def _solve(disc: Discretization, options: AdaptOptions, start: Solution | None, required: bool = True,
+           accept: float | None = None) -> Solution | None:
     """The P1 solution by ``options.method``; Newton from ``start`` when given (and
-    from zero again if that fails). Not converged: an ``InputError`` when
-    ``required``, else None."""
+    from zero again if that fails). Not converged (nor, with ``accept``, certified to that
+    looser tolerance: the user's, when ``options.tol`` is the local bound's tighter one,
+    which round-off can keep out of reach): an ``InputError`` when ``required``, else None."""
     from elastoplast.solvers.registry import check_solvable, method_options, solve
 
     values = {"tol": options.tol} if options.method != "conic" else {}
@@ -117,7 +119,7 @@ def _solve(disc: Discretization, options: AdaptOptions, start: Solution | None, 
         sol = solve_newton(disc, opts, warm_start=start)
     if sol is None or not sol.converged:
         sol = solve(disc, options.method, **values)
-    if sol.converged:
+    if sol.converged or (accept is not None and sol.kkt.worst <= accept):
         return sol
     if required:
         raise InputError("adapt", f"the P1 solution on a mesh of {disc.n_elements} elements did not converge: "
@@ -152,12 +154,12 @@ def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solu
     disc = discretize(problem)
     tol = _solve_tol(disc, options)
     solve_options = replace(options, tol=tol)
-    sol = _solve(disc, solve_options, None if start is None else start[0])
+    sol = _solve(disc, solve_options, None if start is None else start[0], accept=options.tol)
     cons = None
     cdisc = conservative_discretization(disc)
     if not np.array_equal(cdisc.psi, disc.psi):  # a flat obstacle needs no allowance: nothing to solve again
         # only a candidate: if its solve fails, the problem's own solution bounds alone
-        cons = _solve(cdisc, solve_options, None if start is None else start[1], required=False)
+        cons = _solve(cdisc, solve_options, None if start is None else start[1], required=False, accept=options.tol)
     upper = smallest_upper_bound(disc, sol, cons)  # as bounds.best_upper_bound, with warm-started solves
     t1 = time.perf_counter()
     lower_options = _lower_options(options)

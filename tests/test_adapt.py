@@ -160,8 +160,8 @@ def test_a_failed_conservative_solve_leaves_the_problems_own_bound(coarse_cylind
     from elastoplast.bounds.upper import upper_bound
 
     solve = ad._solve
-    monkeypatch.setattr(ad, "_solve", lambda disc, options, start, required=True:
-                        solve(disc, options, start, required) if required else None)
+    monkeypatch.setattr(ad, "_solve", lambda disc, options, start, required=True, **kw:
+                        solve(disc, options, start, required, **kw) if required else None)
     run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", max_iter=2))
     assert all(s.certified for s in run.steps)
     assert run.final.energy_upper == upper_bound(run.disc, run.solution).Pi

@@ -21,7 +21,7 @@ import numpy as np
 
 from elastoplast.bounds.edges import (LAM_MARGIN, lifted_stresses, piola, ring_corrections, ring_face_bases,
                                       ring_step, scaled_system)
-from elastoplast.bounds.equilibrate import Faces
+from elastoplast.bounds.equilibrate import Faces, segment_ranges
 from elastoplast.bounds.lift import ElementMaps, reference_lift
 from elastoplast.bounds.rings import RingBatch
 from elastoplast.fem.material import von_mises
@@ -53,6 +53,7 @@ class RingFrame:
         self.parts = []
         self.n_faces = faces.nodes.shape[0]
         self.d = d
+        self.where = []  # per part: its (ring, face position) slots sorted by facet, and those facets
         off = 0
         for b in batches:
             B = ring_face_bases(b, points, faces, rings, d)
@@ -60,6 +61,8 @@ class RingFrame:
             nq = b.Nb.shape[2]
             na = B.shape[3] - nq
             self.parts.append((b, B, na, nq, off))
+            order = np.argsort(b.F.ravel(), kind="stable")
+            self.where.append((order, b.F.ravel()[order]))
             off += m * (kf * na + nq)
         self.size = off
 
@@ -93,12 +96,14 @@ class RingFrame:
         """``B^T e_i`` for the unit tractions ``e_i`` at facet ``f[i]``, entry ``x[i]`` (of its
         ``d d``), on the columns that any of them touches: ``(cols (c,), rows (k, c))``."""
         pos, val, who = [], [], []
-        for b, B, na, nq, off in self.parts:
+        for (b, B, na, nq, off), (order, facets) in zip(self.parts, self.where):
             kf = b.F.shape[1]
             r = kf * na + nq
-            ring, fp, i = np.nonzero(b.F[:, :, None] == f[None, None, :])
-            if ring.size == 0:
+            lo, hi = np.searchsorted(facets, f, "left"), np.searchsorted(facets, f, "right")
+            i = np.repeat(np.arange(f.size), hi - lo)  # each occurrence of each f[i] in this part
+            if i.size == 0:
                 continue
+            ring, fp = np.divmod(order[np.repeat(lo, hi - lo) + segment_ranges(hi - lo)], kf)
             v = b.s[ring, fp][:, None] * B[ring, fp, x[i], :]  # (h, na + nq)
             base = off + ring * r
             cols = np.concatenate([base[:, None] + fp[:, None] * na + np.arange(na),
@@ -225,9 +230,9 @@ def pressure_projection(frame: RingFrame, t: np.ndarray, held: np.ndarray, conta
     return proj
 
 
-def lbfgs_direction(gy: np.ndarray, S: list, Y: list, H0, proj=None) -> np.ndarray:
-    """``-P H P gy``: L-BFGS's two loops (initial inverse Hessian ``H0``, a callable) between the
-    projections ``proj`` (P, or none)."""
+def lbfgs_direction(gy: np.ndarray, S: list, Y: list, H0, proj=None, gamma: float = 1.0) -> np.ndarray:
+    """``-P H P gy``: L-BFGS's two loops (initial inverse Hessian ``gamma H0``, ``H0`` a
+    callable: :func:`preconditioner_scale`) between the projections ``proj`` (P, or none)."""
     q = -(gy if proj is None else proj(gy))
     hist = []
     for s, yv in zip(reversed(S), reversed(Y)):
@@ -235,12 +240,16 @@ def lbfgs_direction(gy: np.ndarray, S: list, Y: list, H0, proj=None) -> np.ndarr
         a = rho * float(s @ q)
         q = q - a * yv
         hist.append((a, rho))
-    q = H0(q)
-    if S:  # the preconditioner's scale measured by the last pair (the rings overlap: their sum over-steps)
-        q = q * (float(S[-1] @ Y[-1]) / float(Y[-1] @ H0(Y[-1])))
+    q = H0(q) * gamma
     for (s, yv), (a, rho) in zip(zip(S, Y), reversed(hist)):
         q = q + s * (a - rho * float(yv @ q))
     return q if proj is None else proj(q)
+
+
+def preconditioner_scale(S: list, Y: list, H0) -> float:
+    """The scale of the initial inverse Hessian ``H0`` measured by the last pair, ``s^T y / y^T H0 y``
+    (the rings overlap: their sum over-steps); 1 without pairs."""
+    return float(S[-1] @ Y[-1]) / float(Y[-1] @ H0(Y[-1])) if S else 1.0
 
 
 def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes: np.ndarray, ctx: dict,
@@ -266,8 +275,9 @@ def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray,
             H0 = RingPreconditioner(frame, points, maps, faces, rings, t, volumes, ctx)
         stuck = np.zeros((0, 2), dtype=np.int64)
         proj = None
+        gamma = preconditioner_scale(S, Y, H0)
         while True:  # the pressures at zero that the step would lower are held (projected out), until none is left
-            q = lbfgs_direction(gy, S, Y, H0, proj)
+            q = lbfgs_direction(gy, S, Y, H0, proj, gamma)
             dt = frame.apply(q)
             more = zero_pressures(t, dt, ctx["contact"], stuck)
             if more.shape[0] == 0:

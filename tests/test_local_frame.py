@@ -182,3 +182,37 @@ def test_the_descent_stops_early_when_its_gains_are_small_against_the_gap(quarte
     assert free_run.timings["descent_steps"] > DESCENT_WINDOW
     assert endless.timings["descent_steps"] == free_run.timings["descent_steps"] and endless.J == free_run.J
     assert far.certified and far.J >= free_run.J
+
+
+def test_the_pressures_held_in_one_step_are_held_from_the_start_of_the_next(quarter, monkeypatch):
+    """Every projection holds only pressures at zero (at most ZERO_PRESSURE of the largest:
+    holding a positive one would be a needless restriction), some step starts with the pairs
+    the last one held (the carried set: a step with nothing carried calls no projection
+    before its first direction), and the set is found afresh every HOLD_STEPS steps."""
+    import elastoplast.bounds.frame as fr
+
+    disc = quarter[0]
+    sol = ep.solve(disc, "newton")
+    calls = []
+    project, fresh = fr.pressure_projection, fr.still_zero
+
+    def spy(frame, t, held, contact):
+        lam = t[np.flatnonzero(contact), :, 2]
+        calls.append(("hold", held.copy(), lam[held[:, 0], held[:, 1]].max(), lam.max()))
+        return project(frame, t, held, contact)
+
+    def carried(t, pairs, contact):
+        kept = fresh(t, pairs, contact)
+        calls.append(("carry", kept.copy()))
+        return kept
+
+    monkeypatch.setattr(fr, "pressure_projection", spy)
+    monkeypatch.setattr(fr, "still_zero", carried)
+    lb = local_lower_bound(disc, sol, 8, descent=2 * fr.HOLD_STEPS + 1)
+    steps = lb.timings["descent_steps"]
+    assert lb.certified and steps == 2 * fr.HOLD_STEPS + 1
+    holds = [c for c in calls if c[0] == "hold"]
+    assert holds and all(top <= fr.ZERO_PRESSURE * largest for _, _, top, largest in holds)
+    carries = [c[1] for c in calls if c[0] == "carry"]
+    assert len(carries) == steps - 3  # steps 0, HOLD_STEPS and 2 HOLD_STEPS start afresh
+    assert any(c.size for c in carries)

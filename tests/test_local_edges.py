@@ -107,7 +107,7 @@ def test_3d_default_problem_gap_within_the_target_of_the_global_program():
     glob = solve_lower_bound(disc)
     start = local_lower_bound(disc, sol, n_sweeps=0)
     seen = []
-    lb = local_lower_bound(disc, sol, progress=lambda f, what: seen.append(f))  # the defaults: 64 sweeps, then at most 100 descent steps
+    lb = local_lower_bound(disc, sol, progress=lambda f, what: seen.append(f))  # the defaults: 64 sweeps, then at most 300 descent steps
     assert up.certified and glob.certified and lb.certified, lb.message
     assert lb.lower <= up.Pi and glob.lower <= up.Pi
     assert (up.Pi - lb.lower) <= 1.5 * (up.Pi - glob.lower)

@@ -281,15 +281,15 @@ def admissible_field(split_disc: Discretization, tau: np.ndarray, lam: np.ndarra
 LOCAL_SWEEPS = {2: 64, 3: 64}
 #: steps at most of the descent over all rings together after the sweeps
 #: (:mod:`elastoplast.bounds.frame`; it stops earlier once its predicted decrease is below
-#: :data:`~elastoplast.bounds.frame.DESCENT_RTOL` of J). The sweeps alone stall in plastic
-#: zones. Measured (benchmarks/bounds/local.md and the closing runs of 2026-12-02), gap over
-#: the global program's on the same mesh: quarter sphere 1,080 tetrahedra 12.9 after 32
-#: sweeps, 5.1 with 100 steps after them, 1.30 with 300; default 3D problem 12,288: 1.48,
-#: 1.41 (+133 s), 1.69 after 8 sweeps and 300 steps (+364 s: one step costs about half a
-#: sweep, and the steps needed grow with the mesh); 2D cylinder 25,600: 1.28 after 64
-#: sweeps, 0.99 with 100 steps (47 s against the program's 64 s). Given the upper bound,
-#: the descent also stops when it gains little against the gap (frame.DESCENT_GAP_SHARE)
-DESCENT_STEPS = {2: 100, 3: 100}
+#: :data:`~elastoplast.bounds.frame.DESCENT_RTOL` of J, or, given the upper bound, once it
+#: gains little against the gap: frame.DESCENT_GAP_SHARE). The sweeps alone stall in plastic
+#: zones. Measured with the upper bound given (as `bounds` and `adapt` run it), gap over the
+#: global program's on the same mesh, 100 steps / 300: quarter sphere at 1,080 tetrahedra
+#: 4.27 / 1.25 (6.7 s / 10.5 s); default 3D problem at 12,288 1.20 (100 steps) / 1.19 (113
+#: steps, then the gap stop; 67 s / 70 s); cylinder at 25,600 triangles 1.03 either way (the
+#: gap stop after 24 steps); a cylinder mesh after one adaptive step (6,768 triangles) 1.80 /
+#: 1.17 (6.7 s / 13.8 s)
+DESCENT_STEPS = {2: 300, 3: 300}
 
 
 def local_sweeps(dim: int) -> int:

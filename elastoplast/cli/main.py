@@ -160,8 +160,8 @@ def _add_lower_argument(p: argparse.ArgumentParser) -> None:
                         "local above")
     p.add_argument("--descent", type=int, metavar="STEPS",
                    help="the local lower bound's steps over all patches together after its sweeps (default: "
-                        f"{DESCENT_STEPS[2]}; 0: the sweeps alone, faster on large 3D meshes; more: tighter where "
-                        "plastic zones stall the sweeps)")
+                        f"{DESCENT_STEPS[2]}, fewer once they gain little against the gap; 0: the sweeps alone, "
+                        "faster and looser; more: tighter where plastic zones stall the sweeps)")
 
 
 def _add_dask_arguments(p: argparse.ArgumentParser) -> None:

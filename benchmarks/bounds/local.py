@@ -33,7 +33,7 @@ TITLE = "Local lower bound against the global equilibrium-element program"
 
 CASES = {"cylinder_2d": [(40, 20), (80, 40), (160, 80)], "sphere_quarter_3d": [(3, 3, 3), (6, 6, 5)],
          "sphere_block_3d": [(8, 8, 4), (16, 16, 8)]}
-QUICK = {"cylinder_2d": [(24, 12)]}
+QUICK = {"cylinder_2d": [(24, 12)], "sphere_quarter_3d": [(3, 3, 3)]}
 #: the local bounds run: ``S`` sweeps alone, or ``S+D`` sweeps then at most D descent steps over all rings
 #: (the defaults of local_lower_bound: 64+300 in 2D and 3D), ``u`` with the upper bound given, so that the
 #: descent also stops once it gains little against the gap (as ``bounds`` and ``adapt`` run it), ``@A`` the
@@ -71,7 +71,7 @@ def run_one(problem: str, divisions, what: str) -> dict:
             if share:
                 from elastoplast.bounds import edges
 
-                edges.ACTIVE_SHARE = dict(edges.ACTIVE_SHARE, **{disc.dim: float(share)})
+                edges.ACTIVE_SHARE = {**edges.ACTIVE_SHARE, disc.dim: float(share)}
             lb = local_lower_bound(disc, sol, int(sweeps), descent=int(descent or 0), upper=up.Pi if given else None)
             out["local_peak_rss_mb"] = peak_memory() / 2**20
             out.update(sweeps=int(sweeps), descent=int(descent or 0), active_share=edges_share(disc.dim), message=lb.message, time_s=time.perf_counter() - t1, lower=lb.lower, upper=up.Pi, upper_certified=up.certified,

@@ -140,11 +140,25 @@ def test_warm_started_solve_at_another_force(cylinder):
     assert warm.U == pytest.approx(cold.U, rel=1e-8)
 
 
-def test_the_local_bracket_holds_and_overlaps_the_global_one(cylinder):
+def test_the_local_bracket_holds_and_overlaps_the_global_one(cylinder, monkeypatch):
+    import elastoplast.bounds.local as local_module
+
     disc, sol = cylinder
-    seen = []
+    seen, uppers = [], []
+    build = local_module.local_lower_bound
+
+    def spy(d, s, *args, upper=None, **kwargs):
+        lb = build(d, s, *args, upper=upper, **kwargs)
+        uppers.append((d.force, upper, lb.lower))
+        return lb
+
+    monkeypatch.setattr(local_module, "local_lower_bound", spy)
     local = certified_bounds(disc, sol, "newton", lower_options={"kind": "local"},
                              progress=lambda fraction, what: seen.append(fraction))
+    # every local bound, at F and at F -/+ delta, is given an upper bound of its own force (for its
+    # descent's gap stop), and each is above that lower bound (both are bounds of the same problem)
+    assert len(uppers) == 3 and len({f for f, _, _ in uppers}) == 3
+    assert all(up is not None and math.isfinite(up) and lo <= up for _, up, lo in uppers)
     glob = certified_bounds(disc, sol, "newton", lower_options={"kind": "global"})
     assert local.lower.solver == "local" and glob.lower.solver != "local"
     assert local.as_dict()["lower_bound_kind"] == "local" and glob.as_dict()["lower_bound"]["kind"] == "global"

@@ -19,6 +19,7 @@ from elastoplast.bounds.upper import (
     GAP_FLOOR,
     UpperBound,
     best_upper_bound,
+    upper_bound,
 )
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization, check_hencky
@@ -465,8 +466,9 @@ def u_bracket_of(disc: Discretization, b: Bounds, U_h: float, lower_options=None
         if report is not None:
             report(0.0, f"P1 solve at F = {force:.6g}")
         sol = solve_at(disc, force, method, solution, LOCAL_SOLVE_TOL, **options)
-        try:
-            return lower_bound(disc.with_force(force), sol, lower_options, progress=report)
+        at = disc.with_force(force)
+        try:  # the solution's own upper bound there measures the gap the descent's gains are compared with
+            return lower_bound(at, sol, lower_options, progress=report, upper=upper_bound(at, sol).Pi)
         except InputError as exc:  # the local field could not be built from this solution: no bracket
             raise InputError("mesh", f"the local lower bound at F = {force:.6g} (P1 solution: "
                                      f"{sol.status.value}, KKT residual {sol.kkt.worst:.1e}): {exc}") from None

@@ -109,7 +109,7 @@ def test_apply_and_adjoint_are_transposes_and_unit_rows_are_adjoint_columns(quar
     E = np.zeros((4,) + g.shape)
     E.reshape(4, -1, 9)[np.arange(4), f, x] = 1.0
     full = frame.adjoint(E)
-    assert np.array_equal(full[:, cols], rows)
+    assert np.array_equal(full[:, cols], rows.toarray())
     rest = np.ones(frame.size, dtype=bool)
     rest[cols] = False
     assert np.abs(full[:, rest]).max() == 0.0

@@ -85,15 +85,13 @@ def piola(maps: ElementMaps, E: np.ndarray, T: np.ndarray) -> np.ndarray:
 
 
 def ring_sweep(points, cells, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes: np.ndarray,
-               material: Material, batches: list[RingBatch], n_sweeps: int, offset: np.ndarray | None = None,
-               progress=None, psi: np.ndarray | None = None, contact: np.ndarray | None = None) -> np.ndarray:
+               ctx: dict, batches: list[RingBatch], n_sweeps: int, progress=None) -> np.ndarray:
     """At most ``n_sweeps`` sweeps over the ring ``batches`` (after the first, only the rings
     next to a ring that moved, :data:`ACTIVE_SHARE`); returns the new facet tractions ``(F, d, d)``.
-    ``contact (F,)`` marks the Γ0 facets, whose pressure ``t[f, :, d-1] >= 0`` the rings may
-    move when it is among the free components of the batches, and ``psi (F, d)`` their
-    obstacle weights ``q`` at the vertices (J gains ``sum q lam``);
-    ``progress(i)`` is called after sweep i."""
-    ctx = sweep_context(material, faces, cells.shape[0], cells.shape[1] - 1, offset, psi, contact)
+    ``ctx`` is :func:`sweep_context`'s: its ``contact (F,)`` marks the Γ0 facets, whose pressure
+    ``t[f, :, d-1] >= 0`` the rings may move when it is among the free components of the
+    batches, and its ``psi (F, d)`` their obstacle weights ``q`` at the vertices (J gains
+    ``sum q lam``); ``progress(i)`` is called after sweep i."""
     t = t.copy()
     active = np.ones(rings.n_ent, dtype=bool)
     for i in range(n_sweeps):
@@ -121,7 +119,7 @@ def sweep_context(material: Material, faces: Faces, n: int, d: int, offset=None,
     """What J's evaluation on ``n`` elements needs besides the tractions: the stress map,
     compliance, mass matrices, yield stress, hardening, deviator, the plane-strain
     ``tau33`` offset (``base``), the reference operators, the obstacle weights ``psi``
-    and the Γ0 facets ``contact`` (:func:`ring_sweep`'s arguments)."""
+    and the Γ0 facets ``contact (F,)`` (default: no Γ0 facet, no obstacle weight)."""
     T = stress_map(d, material)
     A = material.compliance(d)
     M = mass_matrix(d)

@@ -101,10 +101,10 @@ class RingFrame:
             Y[..., kf * na:] = c[..., na:].sum(axis=2)
         return out if stack else out[0]
 
-    def unit_rows(self, f: np.ndarray, x: np.ndarray, sparse: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def unit_rows(self, f: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         """``B^T e_i`` for the unit tractions ``e_i`` at facet ``f[i]``, entry ``x[i]`` (of its
         ``d d``), on the columns that any of them touches: ``(cols (c,), rows (k, c))``, the
-        rows dense or, with ``sparse``, a CSR matrix (each row touches a few rings)."""
+        rows a CSR matrix (each row touches the few rings of one facet)."""
         pos, val, who = [], [], []
         for (b, B, na, nq, off), (order, facets) in zip(self.parts, self.where):
             kf = b.F.shape[1]
@@ -122,14 +122,11 @@ class RingFrame:
             val.append(v.ravel())
             who.append(np.repeat(i, na + nq))
         if not pos:
-            return np.zeros(0, dtype=np.int64), (sp.csr_matrix((f.size, 0)) if sparse else np.zeros((f.size, 0)))
+            return np.zeros(0, dtype=np.int64), sp.csr_matrix((f.size, 0))
         pos, val, who = np.concatenate(pos), np.concatenate(val), np.concatenate(who)
         cols, at = np.unique(pos, return_inverse=True)
-        if sparse:  # no entry twice: a facet is in one ring of a batch at most, and batches have their own columns
-            return cols, sp.csr_matrix((val, (who, at)), shape=(f.size, cols.size))
-        rows = np.zeros((f.size, cols.size))
-        np.add.at(rows, (who, at), val)
-        return cols, rows
+        # no entry twice: a facet is in one ring of a batch at most, and batches have their own columns
+        return cols, sp.csr_matrix((val, (who, at)), shape=(f.size, cols.size))
 
 
 class RingPreconditioner:
@@ -209,22 +206,24 @@ def pressure_cap(t: np.ndarray, dt: np.ndarray, contact: np.ndarray, held: np.nd
     return float(min(1.0, (1.0 - LAM_MARGIN) * np.min(np.maximum(lam[down], 0.0) / -dlam[down])))
 
 
+def at_zero(t: np.ndarray, contact: np.ndarray) -> np.ndarray:
+    """``(n_cf, d)``: the Γ0 pressures (facet, vertex) that count as zero (at most
+    :data:`ZERO_PRESSURE` of the largest)."""
+    lam = t[contact, :, t.shape[2] - 1]
+    return lam <= ZERO_PRESSURE * max(lam.max(initial=0.0), 1e-300)
+
+
 def zero_pressures(t: np.ndarray, dt: np.ndarray, contact: np.ndarray, held: np.ndarray) -> np.ndarray:
-    """``(k, 2)``: the (Γ0 facet, vertex) pairs not in ``held`` whose pressure is zero (at most
-    :data:`ZERO_PRESSURE` of the largest) and that ``dt`` lowers."""
-    d = t.shape[2]
-    cf = np.flatnonzero(contact)
-    lam, dlam = t[cf, :, d - 1], dt[cf, :, d - 1]
-    hit = (lam <= ZERO_PRESSURE * max(lam.max(initial=0.0), 1e-300)) & (dlam < 0)
+    """``(k, 2)``: the (Γ0 facet, vertex) pairs not in ``held`` whose pressure is zero
+    (:func:`at_zero`) and that ``dt`` lowers."""
+    hit = at_zero(t, contact) & (dt[contact, :, t.shape[2] - 1] < 0)
     hit[held[:, 0], held[:, 1]] = False
     return np.argwhere(hit)
 
 
 def still_zero(t: np.ndarray, pairs: np.ndarray, contact: np.ndarray) -> np.ndarray:
-    """The (Γ0 facet, vertex) ``pairs`` whose pressure is still zero (at most :data:`ZERO_PRESSURE` of the largest)."""
-    d = t.shape[2]
-    lam = t[np.flatnonzero(contact), :, d - 1]
-    return pairs[lam[pairs[:, 0], pairs[:, 1]] <= ZERO_PRESSURE * max(lam.max(initial=0.0), 1e-300)]
+    """The (Γ0 facet, vertex) ``pairs`` whose pressure is still zero (:func:`at_zero`)."""
+    return pairs[at_zero(t, contact)[pairs[:, 0], pairs[:, 1]]]
 
 
 def pressure_projection(frame: RingFrame, t: np.ndarray, held: np.ndarray, contact: np.ndarray):
@@ -237,7 +236,7 @@ def pressure_projection(frame: RingFrame, t: np.ndarray, held: np.ndarray, conta
     tetrahedra, about a thousand rows held)."""
     d = t.shape[2]
     cf = np.flatnonzero(contact)
-    cols, C = frame.unit_rows(cf[held[:, 0]], held[:, 1] * d + d - 1, sparse=True)
+    cols, C = frame.unit_rows(cf[held[:, 0]], held[:, 1] * d + d - 1)
     nrm = np.sqrt(np.asarray(C.multiply(C).sum(axis=1)).ravel())
     keep = nrm > 0  # a pressure no ring moves stays anyway
     C = (sp.diags(1.0 / nrm[keep]) @ C[keep]).tocsr()

@@ -116,7 +116,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     report = progress if progress is not None else (lambda fraction, what: None)
     report(0.1, "equilibrated tractions")
     if n_sweeps > 0:
-        from elastoplast.bounds.edges import ring_repair, ring_sweep
+        from elastoplast.bounds.edges import ring_repair, ring_sweep, sweep_context
         from elastoplast.bounds.rings import mesh_rings, ring_batches
         from elastoplast.bounds.sweeps import REPAIR_PASSES, REPAIR_TOL
 
@@ -140,16 +140,14 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
 
         on_contact = np.zeros(faces.nodes.shape[0], dtype=bool)
         on_contact[cf] = True
-        t = ring_sweep(mesh.points, mesh.cells, maps, faces, rings, t, disc.volumes, m, batches, n_sweeps, offset, swept,
-                       psi_face, on_contact)
+        ctx = sweep_context(m, faces, disc.n_elements, d, offset, psi_face, on_contact)  # the sweeps' and the descent's
+        t = ring_sweep(mesh.points, mesh.cells, maps, faces, rings, t, disc.volumes, ctx, batches, n_sweeps, swept)
         timings["sweeps"] = time.perf_counter() - t1
         timings["descent_steps"] = 0
         if descent > 0:
-            from elastoplast.bounds.edges import sweep_context
             from elastoplast.bounds.frame import RingFrame, frame_descent
 
             t1 = time.perf_counter()
-            ctx = sweep_context(m, faces, disc.n_elements, d, offset, psi_face, on_contact)
 
             def stepped(i):
                 report(0.5 + 0.4 * i / descent, f"descent step {i} of at most {descent}")

@@ -287,17 +287,19 @@ SEQUENCE_MEMORY_FACTOR = 2.0
 #: with a margin. Measured (benchmarks/bounds/local.md, 2026-12-02 06:16 UTC, VmHWM): 2D
 #: cylinder 7.3 kB at 25,600 triangles (newton alone 2.3 kB); 3D default problem 42 kB at
 #: 12,288 tetrahedra (607 MB; 25 kB with the sweeps alone; newton alone 142 MB, the global
-#: program 2.2 GB): the descent keeps every ring's correction basis, its inverse Hessian
-#: and ten L-BFGS pairs. Several in a row peak no higher (the U bracket's three local bounds
+#: program 2.2 GB; 601 MB at commit c2a4e13; 37 kB at 98,304 tetrahedra, 3.6 GB): the descent
+#: keeps every ring's correction basis, its inverse Hessian and ten L-BFGS pairs. Several in a row peak no higher (the U bracket's three local bounds
 #: and two solves at 6,400 triangles: 143 MB against 137 MB for one): no sequence factor.
 LOCAL_BOUND_BYTES_PER_ELEMENT = {2: 12_000, 3: 50_000}
 #: "auto" (:func:`lower_bound_kind`) takes the global program wherever its size limit
 #: (:data:`LOWER_BOUND_MAX_ELEMENTS`) allows, and the local bound above it (H > 0), where
-#: the program is refused: the program is the optimum of its space, and on the meshes it
-#: accepts mostly the cheaper (one run of ``benchmarks/bounds/local.py``, local.md, global /
-#: local with its defaults: 2D cylinder 7.8 / 12.1 s at 6,400 triangles, 58 / 45 s at
-#: 25,600, the local gap 1.01 and 0.99 times the global one; 3D default problem 43 / 195 s
-#: at 12,288 tetrahedra, 1.41 times; quarter sphere at 1,080 tetrahedra 5.1 times).
+#: the program is refused: the program is the optimum of its space, and in 3D, on the meshes
+#: it accepts, the cheaper (one run of ``benchmarks/bounds/local.py``, local.md at commit
+#: c2a4e13, global / local with its defaults and the upper bound given: 2D cylinder 10.1 /
+#: 5.4 s at 6,400 triangles, 55 / 13 s at 25,600, the local gap 1.10 and 1.03 times the
+#: global one; 3D default problem 40 / 73 s at 12,288 tetrahedra, 1.19 times; quarter sphere
+#: at 1,080 tetrahedra 3.2 / 10.3 s, 1.25 times; on a cylinder mesh after one adaptive step
+#: 1.17 times).
 AUTO_GLOBAL_MAX_ELEMENTS = dict(LOWER_BOUND_MAX_ELEMENTS)
 
 

@@ -4,8 +4,8 @@
 
 On the 2D cylinder (problems/cylinder_2d.toml, graded, plastic, H > 0) and the 3D quarter
 sphere (problems/sphere_quarter_3d.toml) and the default 3D problem (problems/sphere_block_3d.toml) at a few sizes, each in its own process (so that
-its peak memory, VmHWM, is its own): ``newton`` (the P1 solve alone), ``local-<S>`` and
-``local-<S>+<D>`` (the P1 solve, the certified upper bound, then :func:`local_lower_bound`
+its peak memory, VmHWM, is its own): ``newton`` (the P1 solve alone, default tolerance), ``local-<S>`` and
+``local-<S>+<D>`` (the P1 solve to the local bound's tolerance, bracket.LOCAL_SOLVE_TOL, as `bounds` solves it; the certified upper bound, then :func:`local_lower_bound`
 with S sweeps and at most D descent steps over all rings, :data:`VARIANTS`; its timings
 split into the ring set-up, the sweeps, the descent, the round-off repair and the rest;
 ``local_peak_rss_mb`` the process's peak after it) and ``global`` (:func:`solve_lower_bound`, the optimum of the equilibrium element on
@@ -59,8 +59,11 @@ def run_one(problem: str, divisions, what: str) -> dict:
         out.update(time_s=time.perf_counter() - t0, lower=lb.lower, certified=lb.certified,
                    certificate_worst=lb.certificate.worst)
     else:
-        sol = ep.solve(disc, "newton")
-        out.update(newton_s=time.perf_counter() - t0, converged=sol.converged)
+        from elastoplast.bounds.bracket import LOCAL_SOLVE_TOL
+
+        # the local rows solve to the tolerance `bounds` asks for the local bound (bracket.local_solution)
+        sol = ep.solve(disc, "newton", **({} if what == "newton" else {"tol": LOCAL_SOLVE_TOL}))
+        out.update(newton_s=time.perf_counter() - t0, converged=sol.converged, kkt=sol.kkt.worst)
         if what.startswith("local"):
             up = best_upper_bound(disc, sol, method="newton")
             t1 = time.perf_counter()

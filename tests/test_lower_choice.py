@@ -21,8 +21,9 @@ import elastoplast as ep
 import elastoplast.bounds.lower as lower_module
 from elastoplast.adapt.budget import lower_bound_budget
 from elastoplast.adapt.records import AdaptOptions
-from elastoplast.bounds.bracket import (LOCAL_SOLVE_TOL, certified_bounds, check_lower_bound_fits, lower_bound,
-                                        solve_at)
+from elastoplast.bounds.bracket import (LOCAL_SOLVE_TOL, certified_bounds, check_lower_bound_fits, local_descent,
+                                        local_solution, lower_bound, solve_at)
+from elastoplast.bounds.local import DESCENT_STEPS
 from elastoplast.bounds.lower import AUTO_GLOBAL_MAX_ELEMENTS, LowerBoundOptions, lower_bound_kind
 from elastoplast.cli.main import main
 from elastoplast.errors import InputError
@@ -110,10 +111,37 @@ def test_adaptive_budget_follows_the_lower_bound_used(monkeypatch):
         assert largest > glob and "memory" in name or name == "max_elements", (kind, name, largest)
     assert lower_bound_budget(3, AdaptOptions(lower="local"), hardening=False)[1] == glob  # H = 0: the program
     assert lower_bound_budget(3, AdaptOptions(lower="local", lower_max_elements=500))[1] == 500
-    monkeypatch.setenv(MEMORY_ENV, "4G")
-    per = lower_module.LOCAL_BOUND_BYTES_PER_ELEMENT[3]
+    monkeypatch.setenv(MEMORY_ENV, "4G")  # the largest mesh the sweeps alone fit (the descent is dropped there)
+    per = lower_module.LOCAL_SWEEPS_BYTES_PER_ELEMENT[3]
     assert lower_bound_budget(3, AdaptOptions(lower="local")) == ("the memory available to the lower bound",
                                                                    4 * 2**30 // per)
+
+
+def test_local_bound_drops_its_descent_where_only_the_sweeps_fit(cylinder, monkeypatch):
+    """Memory between the sweeps' estimate and the descent's (lower.LOCAL_SWEEPS_BYTES_PER_ELEMENT,
+    LOCAL_BOUND_BYTES_PER_ELEMENT): the local bound runs its sweeps alone, says so in a warning,
+    and is still certified; its message names no descent step. Below the sweeps' estimate the
+    bounds are refused before any work; with room the default descent runs."""
+    disc, sol = cylinder
+    n = disc.n_elements
+    sweeps = lower_module.lower_bound_bytes(2, n, "local", descent=False)
+    full = lower_module.lower_bound_bytes(2, n, "local")
+    assert sweeps < full
+    local = LowerBoundOptions(kind="local")
+    monkeypatch.setenv(MEMORY_ENV, str((sweeps + full) // 2))
+    with pytest.warns(UserWarning, match="sweeps alone run"):
+        assert local_descent(disc, local) == 0
+    assert check_lower_bound_fits(disc, local) == "local"
+    with pytest.warns(UserWarning, match="sweeps alone run"):
+        lb = lower_bound(disc, local_solution(disc, sol), local)
+    assert lb.certified and "descent step" not in lb.message, lb.message
+    monkeypatch.setenv(MEMORY_ENV, str(sweeps // 2))
+    with pytest.raises(InputError) as info:
+        check_lower_bound_fits(disc, local)
+    assert info.value.field == "mesh" and "without its descent" in info.value.message
+    monkeypatch.setenv(MEMORY_ENV, str(2 * full))
+    assert local_descent(disc, local) == DESCENT_STEPS[2]
+    assert local_descent(disc, LowerBoundOptions(kind="local", descent=7)) == 7
 
 
 # ---------------------------------------------------------------------------

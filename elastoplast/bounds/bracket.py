@@ -273,8 +273,9 @@ def check_lower_bound_fits(disc: Discretization, options=None, factor: float = 1
     (:func:`~elastoplast.bounds.lower.lower_bound_kind`) cannot finish: the global program by
     :func:`~elastoplast.bounds.lower.check_lower_bound_size` (its size limit and memory,
     ``factor`` for several in a row), the local bound when its estimate
-    (:func:`~elastoplast.bounds.lower.lower_bound_bytes`, with its solve) exceeds the memory
-    available. Returns the kind, ``"global"`` or ``"local"``."""
+    (:func:`~elastoplast.bounds.lower.lower_bound_bytes`, with its solve, the sweeps alone:
+    :func:`~elastoplast.bounds.lower.local_descent` drops the descent where it does not fit)
+    exceeds the memory available. Returns the kind, ``"global"`` or ``"local"``."""
     from elastoplast.bounds.lower import LowerBoundOptions, check_lower_bound_size, lower_bound_bytes, lower_bound_kind
     from elastoplast.limits import check_memory
 
@@ -282,10 +283,35 @@ def check_lower_bound_fits(disc: Discretization, options=None, factor: float = 1
     kind = lower_bound_kind(disc, options)
     if kind == "global":
         check_lower_bound_size(disc, options, factor=factor)
-    else:
-        check_memory(lower_bound_bytes(disc.dim, disc.n_elements, kind), "mesh",
-                     f"the local lower bound ({disc.n_elements:,} elements, with its P1 solve)", "coarsen the mesh")
+    else:  # the sweeps alone where the descent does not fit (lower.local_descent)
+        check_memory(lower_bound_bytes(disc.dim, disc.n_elements, kind, descent=False), "mesh",
+                     f"the local lower bound ({disc.n_elements:,} elements, with its P1 solve, even without its "
+                     "descent)", "coarsen the mesh")
     return kind
+
+
+def local_descent(disc: Discretization, options) -> int:
+    """The descent steps the local bound takes on ``disc``: ``options.descent`` (None:
+    :data:`~elastoplast.bounds.local.DESCENT_STEPS`), or 0, with a warning, where its
+    estimate with the descent (:func:`~elastoplast.bounds.lower.lower_bound_bytes`) exceeds
+    the memory available now (where even the sweeps alone do not fit,
+    :func:`check_lower_bound_fits` refuses the mesh before any work)."""
+    from elastoplast.bounds.local import DESCENT_STEPS
+    from elastoplast.bounds.lower import lower_bound_bytes
+    from elastoplast.limits import available_memory, format_bytes
+
+    steps = DESCENT_STEPS[disc.dim] if options.descent is None else options.descent
+    limit, where = available_memory()
+    if steps == 0 or limit is None:
+        return steps
+    need = lower_bound_bytes(disc.dim, disc.n_elements, "local")
+    if need <= limit:
+        return steps
+    warnings.warn(f"the local lower bound on {disc.n_elements:,} elements: its descent over all rings would need about "
+                  f"{format_bytes(need)}, {format_bytes(limit)} available ({where}); the sweeps alone run (about "
+                  f"{format_bytes(lower_bound_bytes(disc.dim, disc.n_elements, 'local', descent=False))}): "
+                  "certified, only looser", stacklevel=2)
+    return 0
 
 
 def lower_bound(disc: Discretization, solution=None, options=None, *, progress: Progress | None = None,
@@ -320,7 +346,8 @@ def lower_bound(disc: Discretization, solution=None, options=None, *, progress: 
             progress(0.0, f"lower bound: local field ({disc.n_elements:,} elements)")
         from elastoplast.bounds.local import local_lower_bound
 
-        lower = local_lower_bound(disc, solution, descent=options.descent, progress=progress, upper=upper)
+        descent = local_descent(disc, options)
+        lower = local_lower_bound(disc, solution, descent=descent, progress=progress, upper=upper)
     if progress is not None:
         progress(1.0, "lower bound done")
     return lower

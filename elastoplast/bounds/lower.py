@@ -291,6 +291,15 @@ SEQUENCE_MEMORY_FACTOR = 2.0
 #: keeps every ring's correction basis, its inverse Hessian and ten L-BFGS pairs. Several in a row peak no higher (the U bracket's three local bounds
 #: and two solves at 6,400 triangles: 143 MB against 137 MB for one): no sequence factor.
 LOCAL_BOUND_BYTES_PER_ELEMENT = {2: 12_000, 3: 50_000}
+#: the same without the descent (the sweeps alone: no frame of ring bases, no inverse
+#: Hessians, no L-BFGS pairs), per element above a fixed part: measured (VmHWM, default 3D
+#: problem, benchmarks/bounds/local.md at 15ca4eb and a separate run at 98,304 tetrahedra)
+#: 378 MB at 12,288 tetrahedra and 1,335 MB at 98,304, 11.1 kB per added tetrahedron (with
+#: the descent: 597 MB and 3,651 MB, 35.5 kB); 2D cylinder 231 MB at 25,600 triangles (270 MB
+#: with the descent; newton alone 150 MB).
+#: Where the descent would not fit in the memory available but the sweeps alone do, the local
+#: bound drops the descent, with a warning (:func:`~elastoplast.bounds.bracket.local_descent`)
+LOCAL_SWEEPS_BYTES_PER_ELEMENT = {2: 9_000, 3: 16_000}
 #: "auto" (:func:`lower_bound_kind`) takes the global program wherever its size limit
 #: (:data:`LOWER_BOUND_MAX_ELEMENTS`) allows, and the local bound above it (H > 0), where
 #: the program is refused: the program is the optimum of its space, and in 3D, on the meshes
@@ -318,23 +327,32 @@ def lower_bound_kind(disc: Discretization, options: "LowerBoundOptions | None" =
     return "global" if not hardening or disc.n_elements <= AUTO_GLOBAL_MAX_ELEMENTS[disc.dim] else "local"
 
 
-def lower_bound_bytes(dim: int, n_elements: int, kind: str = "global") -> int:
+def lower_bound_bytes(dim: int, n_elements: int, kind: str = "global", descent: bool = True) -> int:
     """Estimated peak memory of one lower bound of ``kind`` on ``n_elements`` elements
-    (the global program's, or the local bound's with its solve)."""
-    per = LOWER_BOUND_BYTES_PER_ELEMENT if kind == "global" else LOCAL_BOUND_BYTES_PER_ELEMENT
+    (the global program's, or the local bound's with its solve: with its descent, or
+    ``descent`` False the sweeps alone)."""
+    if kind == "global":
+        per = LOWER_BOUND_BYTES_PER_ELEMENT
+    else:
+        per = LOCAL_BOUND_BYTES_PER_ELEMENT if descent else LOCAL_SWEEPS_BYTES_PER_ELEMENT
     return int(per[dim]) * int(n_elements)
 
 
 def lower_bound_fits(dim: int, factor: float = SEQUENCE_MEMORY_FACTOR, kind: str = "global") -> int | None:
     """The most elements whose lower bounds of ``kind`` (global programs: ``factor`` times the
-    estimate of one; local bounds: one) fit in the memory available now
+    estimate of one; local bounds: one, the sweeps alone, as
+    :func:`~elastoplast.bounds.bracket.local_descent` runs it
+    where the descent does not fit) fit in the memory available now
     (:func:`elastoplast.limits.available_memory`), or None where that is unknown."""
     from elastoplast.limits import available_memory
 
     limit, _ = available_memory()
     if limit is None:
         return None
-    return int(limit // ((factor if kind == "global" else 1.0) * lower_bound_bytes(dim, 1, kind)))
+    if kind == "global":
+        return int(limit // (factor * lower_bound_bytes(dim, 1)))
+    return int(limit // lower_bound_bytes(dim, 1, kind, descent=False))
+
 
 
 def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, limit: bool = False,

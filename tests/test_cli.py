@@ -234,3 +234,21 @@ def test_perfect_plasticity_warns_and_reports_the_limit_load(tmp_path, capsys):
     # below the limit load the same column is solved: F = k w, a third of the bound
     data["load"]["force"] = sigma_y / 3**0.5
     assert main(["solve", str(write_toml(tmp_path / "q.toml", data)), "--out", str(tmp_path / "o2"), "--quiet"]) == 0
+
+
+def test_a_warning_during_a_progress_bar_gets_a_line_of_its_own(capsys):
+    """The local bound warns (e.g. that it drops its descent) while its bar is drawn: the
+    warning must not be glued to the end of the bar's line."""
+    import re
+    import sys
+
+    from tqdm import tqdm
+
+    from elastoplast.cli.main import _show_warning
+
+    bar = tqdm(total=10, desc="local lower bound", file=sys.stderr, mininterval=0)
+    bar.update(3)
+    _show_warning("the sweeps alone run", UserWarning, "f.py", 1)
+    bar.close()
+    pieces = re.split(r"[\r\n]", capsys.readouterr().err)
+    assert "warning: the sweeps alone run" in pieces, pieces

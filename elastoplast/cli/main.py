@@ -236,11 +236,18 @@ def _sigterm_unwinds():
         signal.signal(signal.SIGTERM, previous)
 
 
+def _show_warning(message, *args, **kwargs) -> None:
+    """A warning on a line of its own, above any progress bar (tqdm clears and redraws it)."""
+    from tqdm import tqdm
+
+    tqdm.write(f"warning: {message}", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code instead of raising for bad input."""
     with warnings.catch_warnings(), _sigterm_unwinds(), _guarded_stdout() as out:
         warnings.simplefilter("always")
-        warnings.showwarning = lambda msg, *a, **k: print(f"warning: {msg}", file=sys.stderr)
+        warnings.showwarning = _show_warning
         try:
             try:
                 args = build_parser().parse_args(argv)

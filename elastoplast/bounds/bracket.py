@@ -274,7 +274,7 @@ def check_lower_bound_fits(disc: Discretization, options=None, factor: float = 1
     :func:`~elastoplast.bounds.lower.check_lower_bound_size` (its size limit and memory,
     ``factor`` for several in a row), the local bound when its estimate
     (:func:`~elastoplast.bounds.lower.lower_bound_bytes`, with its solve, the sweeps alone:
-    :func:`~elastoplast.bounds.lower.local_descent` drops the descent where it does not fit)
+    :func:`local_descent` drops the descent where it does not fit)
     exceeds the memory available. Returns the kind, ``"global"`` or ``"local"``."""
     from elastoplast.bounds.lower import LowerBoundOptions, check_lower_bound_size, lower_bound_bytes, lower_bound_kind
     from elastoplast.limits import check_memory
@@ -283,7 +283,7 @@ def check_lower_bound_fits(disc: Discretization, options=None, factor: float = 1
     kind = lower_bound_kind(disc, options)
     if kind == "global":
         check_lower_bound_size(disc, options, factor=factor)
-    else:  # the sweeps alone where the descent does not fit (lower.local_descent)
+    else:  # the sweeps alone where the descent does not fit (local_descent)
         check_memory(lower_bound_bytes(disc.dim, disc.n_elements, kind, descent=False), "mesh",
                      f"the local lower bound ({disc.n_elements:,} elements, with its P1 solve, even without its "
                      "descent)", "coarsen the mesh")

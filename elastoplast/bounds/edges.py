@@ -363,9 +363,10 @@ def ring_repair(points, cells, maps: ElementMaps, faces: Faces, t: np.ndarray, b
     balance rows of its elements (rows normalised; ``(C C^T + eps I)`` solved and refined
     once, so a ring's own net imbalance, which it cannot change, is left for the next
     colour). Passes over the colours until the largest relative imbalance
-    (:func:`~elastoplast.bounds.sweeps.element_imbalance`) is at most ``tol``; a pass visits
-    only the rings with an element above ``VISIT * tol`` (a ring's correction changes the balance of
-    its own elements only); they stop once a pass lowers it by less than :data:`STALL`. Returns ``(t, before, after)``."""
+    (:func:`~elastoplast.bounds.sweeps.element_imbalance`) is at most ``tol``, or until a pass
+    lowers it by less than :data:`STALL`; a pass visits only the rings with an element above
+    ``VISIT * tol`` (a ring's correction changes the balance of its own elements only).
+    Returns ``(t, before, after)``."""
     from elastoplast.bounds.sweeps import balance_matrices, element_imbalance
 
     t = t.copy()

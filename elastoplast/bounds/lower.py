@@ -341,8 +341,8 @@ def lower_bound_bytes(dim: int, n_elements: int, kind: str = "global", descent: 
 def lower_bound_fits(dim: int, factor: float = SEQUENCE_MEMORY_FACTOR, kind: str = "global") -> int | None:
     """The most elements whose lower bounds of ``kind`` (global programs: ``factor`` times the
     estimate of one; local bounds: one, the sweeps alone, as
-    :func:`~elastoplast.bounds.bracket.local_descent` runs it
-    where the descent does not fit) fit in the memory available now
+    :func:`~elastoplast.bounds.bracket.local_descent` runs it where the descent does not
+    fit) fit in the memory available now
     (:func:`elastoplast.limits.available_memory`), or None where that is unknown."""
     from elastoplast.limits import available_memory
 
@@ -352,7 +352,6 @@ def lower_bound_fits(dim: int, factor: float = SEQUENCE_MEMORY_FACTOR, kind: str
     if kind == "global":
         return int(limit // (factor * lower_bound_bytes(dim, 1)))
     return int(limit // lower_bound_bytes(dim, 1, kind, descent=False))
-
 
 
 def check_lower_bound_size(disc: Discretization, options: LowerBoundOptions, limit: bool = False,

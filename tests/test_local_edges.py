@@ -12,6 +12,9 @@ Where the numbers come from:
   target (gap at most 1.5 times the global program's) on the default 3D problem at 1,536
   tetrahedra (measured 1.33 with 16 sweeps alone, 1.27 with 32, 1.00 with 8 sweeps and 300
   descent steps over all rings, benchmarks/bounds/local.md);
+* the compiled ring step (``ring_kernel``) is the batched numpy step (``edges.ring_step``)
+  written again as loops: from the same tractions both give the same new tractions and
+  gains to round-off (a change to one side's curvature terms fails it);
 * moving the pressure keeps ``int lam = F`` (the rings are self-equilibrated, so their
   boundary faces' net force is zero) and ``lam >= 0`` (steps are capped).
 """
@@ -22,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import build, sphere_quarter_dict
+from conftest import build, cylinder_dict, sphere_quarter_dict
 
 import elastoplast as ep
 from elastoplast.bounds.edges import ring_corrections, ring_face_bases
@@ -174,3 +177,39 @@ def test_repair_visits_only_the_rings_of_unbalanced_elements(monkeypatch):
     monkeypatch.setattr(sweeps, "element_imbalance", lambda *a: calls.append(1) or imbalance(*a))
     _, _, floor = ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 0.0, 1000)
     assert len(calls) < 100 and floor <= tol
+
+
+@pytest.mark.parametrize("case", ["cylinder", "quarter", "default"])
+def test_compiled_ring_step_is_the_numpy_step(monkeypatch, case):
+    """The sweeps' compiled step (ring_kernel.ring_newton) against the batched numpy step
+    (edges.ring_step), batch by batch from the same tractions, through two sweeps of a real
+    bound: the same new tractions and gains to round-off. The cases cover 2D and 3D, Γ0
+    rings whose pressure moves, symmetry planes (the boundary rings' null spaces of the
+    quarter sphere) and plastic elements (the default problem: the Newton curvature terms)."""
+    from elastoplast.bounds import edges
+    from elastoplast.fem.material import von_mises
+
+    disc = {"cylinder": lambda: build(cylinder_dict((24, 12))), "quarter": _quarter,
+            "default": lambda: _shipped("sphere_block_3d", (6, 6, 3))}[case]()
+    sol = ep.solve(disc, "newton")
+    compiled = edges.compiled_ring_step
+    seen = {"batches": 0, "contact": 0, "t": 0.0, "gain": 0.0}
+
+    def both(b, points, maps, faces, rings, t, volumes, ctx):
+        t_numpy = t.copy()
+        g_numpy = edges.ring_step(b, points, maps, faces, rings, t_numpy, volumes, ctx)
+        g = compiled(b, points, maps, faces, rings, t, volumes, ctx)
+        scale = np.abs(t_numpy).max()
+        seen["t"] = max(seen["t"], np.abs(t - t_numpy).max() / scale)
+        seen["gain"] = max(seen["gain"], np.abs(g - g_numpy).max() / max(np.abs(g_numpy).max(), 1e-300))
+        seen["batches"] += 1
+        seen["contact"] += int(ctx["contact"][b.F[b.F >= 0]].any())
+        return g
+
+    monkeypatch.setattr(edges, "compiled_ring_step", both)
+    lb = local_lower_bound(disc, sol, n_sweeps=2, descent=0)
+    assert lb.certified, lb.message
+    assert seen["batches"] > 0 and seen["contact"] > 0
+    assert seen["t"] < 1e-10 and seen["gain"] < 1e-8, seen
+    if case == "default":  # the plastic branch ran
+        assert (von_mises(np.asarray(sol.sigma)) > disc.material.yield_stress * (1 - 1e-9)).any()

@@ -22,6 +22,8 @@ local-entity class."""
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 
 import numpy as np
@@ -47,6 +49,8 @@ LAM_MARGIN = 1e-9
 #: the larger share stops the star sweeps early and leaves the work to the slower descent
 #: (cylinder, 25,600 triangles, 64 sweeps then the descent: 0.05 17 s, 1.03; 1.0 34 s, 1.06)
 ACTIVE_SHARE = {2: 0.05, 3: 1.0}
+#: threads of the compiled ring step (:func:`compiled_ring_step`): the rings of one colour are cut in this many slices
+KERNEL_THREADS = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 @lru_cache(maxsize=None)
@@ -99,10 +103,10 @@ def ring_sweep(points, cells, maps: ElementMaps, faces: Faces, rings, t: np.ndar
         for b in batches:
             keep = active[b.ent]
             if keep.all():
-                gain[b.ent] = ring_step(b, points, maps, faces, rings, t, volumes, ctx)
+                gain[b.ent] = compiled_ring_step(b, points, maps, faces, rings, t, volumes, ctx)
             elif keep.any():
                 sub = subset(b, keep)
-                gain[sub.ent] = ring_step(sub, points, maps, faces, rings, t, volumes, ctx)
+                gain[sub.ent] = compiled_ring_step(sub, points, maps, faces, rings, t, volumes, ctx)
         if progress is not None:
             progress(i + 1)
         # next sweep: the rings that share an element with a ring whose gain was not negligible
@@ -300,6 +304,63 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
     ok = b.F >= 0
     t.reshape(t.shape[0], -1)[b.F[ok]] += (b.s[..., None] * dtau)[ok]
     return gain
+
+
+def compiled_ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes,
+                       ctx: dict) -> np.ndarray:
+    """:func:`ring_step` in compiled loops, ring by ring (:func:`~elastoplast.bounds.ring_kernel.ring_newton`):
+    the same step written into ``t``; returns each ring's gain."""
+    from elastoplast.bounds.ring_kernel import ring_newton
+
+    d = maps.J.shape[1]
+    element_context(maps, ctx)
+    Lfull, sel, Lsel, HQ, HD, AV = ctx["ops"]
+    pairs, tri, HQp = packed_hessian_operator(d)
+    LselT = np.swapaxes(Lsel, 1, 2)
+    if "sign" not in ctx:
+        ctx["sign"] = faces.sign.astype(float)
+    gain = np.zeros(b.E.shape[0])
+    args = [b.E, b.valid, b.le, b.lf, b.j, b.o.astype(float), b.F, b.s, b.end, b.Nb, d if d == 3 else 1, points,
+            faces.nodes, rings.point, rings.ell, b.ent, t, faces.face, faces.slot, ctx["sign"],
+            maps.Jinv, ctx["scale"], ctx["TP"], ctx["base"], volumes, ctx["A"], ctx["M"], float(ctx["sy"]),
+            float(ctx["H"]), ctx["Dv"], Lfull, Lsel, LselT, HQp, pairs, tri, AV, ctx["contact"], ctx["psi"],
+            np.array(STEPS), RIDGE, LAM_MARGIN, gain]
+    # one compiled signature: every array C-contiguous and writable (a read-only view is copied; t is written in place)
+    args = [np.require(a, requirements=("C", "W")) if isinstance(a, np.ndarray) and a is not t else a for a in args]
+    m = b.E.shape[0]
+    cuts = np.linspace(0, m, min(KERNEL_THREADS, max(1, m // 64)) + 1).astype(int)
+    if cuts.size == 2:
+        ring_newton(0, m, *args)
+    else:
+        with ThreadPoolExecutor(cuts.size - 1) as pool:
+            list(pool.map(lambda lo_hi: ring_newton(lo_hi[0], lo_hi[1], *args), zip(cuts[:-1], cuts[1:])))
+    return gain
+
+
+@lru_cache(maxsize=None)
+def packed_hessian_operator(d: int):
+    """``(pairs (np, 2), tri (nt, 2), HQp (n_le, nt, np))``: :func:`reference_operators`' ``HQ`` on the
+    pairs ``p <= q`` of the symmetric ``Q`` (the two orders summed) and the entries ``x <= y`` of
+    the symmetric element Hessian."""
+    _, sel, _, HQ, _, _ = reference_operators(d)
+    m = len(MANDEL_PAIRS[d])
+    nsel = sel.shape[1]
+    pairs = np.array([(p, q) for p in range(m) for q in range(p, m)], dtype=np.int64)
+    tri = np.array([(x, y) for x in range(nsel) for y in range(x, nsel)], dtype=np.int64)
+    H4 = HQ.reshape(-1, m, m, nsel, nsel)
+    both = H4 + np.swapaxes(H4, 1, 2) * 1.0
+    both[:, np.arange(m), np.arange(m)] *= 0.5
+    HQp = both[:, pairs[:, 0], pairs[:, 1]][:, :, tri[:, 0], tri[:, 1]]  # (n_le, np, nt)
+    return pairs, tri, np.ascontiguousarray(np.swapaxes(HQp, 1, 2))
+
+
+def element_context(maps: ElementMaps, ctx: dict) -> None:
+    """Keep in ``ctx`` what J's evaluation needs per element of the mesh: ``TP`` the double Piola
+    maps (:func:`piola`), ``scale`` the physical over reference facet measures."""
+    if "TP" not in ctx:
+        d = maps.J.shape[1]
+        ctx["TP"] = piola(maps, np.arange(maps.J.shape[0]), ctx["T"])
+        ctx["scale"] = maps.facet_areas / reference_lift(d).areas
 
 
 def ring_corrections(B: np.ndarray, y: np.ndarray, nq: int) -> np.ndarray:

@@ -21,10 +21,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from elastoplast.bounds.edges import (LAM_MARGIN, lifted_stresses, piola, ring_corrections, ring_face_bases,
-                                      ring_step, scaled_system)
+from elastoplast.bounds.edges import (LAM_MARGIN, element_context, lifted_stresses, ring_corrections,
+                                      ring_face_bases, ring_step, scaled_system)
 from elastoplast.bounds.equilibrate import Faces, segment_ranges
-from elastoplast.bounds.lift import ElementMaps, reference_lift
+from elastoplast.bounds.lift import ElementMaps
 from elastoplast.bounds.rings import RingBatch
 from elastoplast.fem.material import von_mises
 
@@ -159,9 +159,8 @@ def field_energy(maps: ElementMaps, faces: Faces, t: np.ndarray, volumes: np.nda
     Lfull = ctx["ops"][0]
     n, d = maps.J.shape[:2]
     d1, k = d + 1, ctx["T"].shape[0]
-    if "TP" not in ctx:
-        ctx["TP"] = piola(maps, np.arange(n), ctx["T"])
-        ctx["scale"] = maps.facet_areas / reference_lift(d).areas
+    element_context(maps, ctx)
+    if "efa" not in ctx:
         ctx["efa"] = np.nonzero(faces.slot >= 0)
     TP, scale = ctx["TP"], ctx["scale"]
     sig = lifted_stresses(maps, faces, t, np.arange(n), TP, scale, ctx)

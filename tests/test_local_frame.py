@@ -34,6 +34,7 @@ from elastoplast.bounds.rings import mesh_rings, ring_batches
 from elastoplast.bounds.static import psi_weights
 from elastoplast.bounds.sweeps import balance_matrices
 from elastoplast.bounds.upper import best_upper_bound
+from elastoplast.fem.material import von_mises
 
 
 def frame_of(disc):
@@ -216,3 +217,22 @@ def test_the_pressures_held_in_one_step_are_held_from_the_start_of_the_next(quar
     carries = [c[1] for c in calls if c[0] == "carry"]
     assert len(carries) == steps - 3  # steps 0, HOLD_STEPS and 2 HOLD_STEPS start afresh
     assert any(c.size for c in carries)
+
+
+def test_field_energy_is_the_sum_of_the_element_energies(quarter):
+    """The compiled J of the descent against the batched numpy pieces of the sweeps (the lift
+    ``edges.lifted_stresses`` and ``sweeps.element_energy``) plus the obstacle term, at a plastic state."""
+    from elastoplast.bounds.edges import element_context, lifted_stresses
+    from elastoplast.bounds.sweeps import element_energy
+
+    disc, maps, faces, cf, free, rings, frame = quarter
+    ctx = _context(disc, faces, cf)
+    rng = np.random.default_rng(4)
+    t = rng.normal(size=(faces.nodes.shape[0], 3, 3)) * disc.material.yield_stress * 1.5
+    J, _ = field_energy(maps, faces, t, disc.volumes, ctx, gradient=False)
+    element_context(maps, ctx)
+    n = disc.n_elements
+    sig = lifted_stresses(maps, faces, t, np.arange(n), ctx["TP"], ctx["scale"], ctx).reshape(n, 4, 4, -1)
+    el = element_energy(sig, disc.volumes / 4, ctx["MA"], ctx["M"], ctx["sy"], ctx["H"])
+    assert el.max() > 0 and (von_mises(sig) > ctx["sy"]).any()
+    assert J == pytest.approx(el.sum() + (ctx["psi"][cf] * t[cf, :, 2]).sum(), rel=1e-12)

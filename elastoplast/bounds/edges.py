@@ -327,14 +327,19 @@ def compiled_ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, ri
             np.array(STEPS), RIDGE, LAM_MARGIN, gain]
     # one compiled signature: every array C-contiguous and writable (a read-only view is copied; t is written in place)
     args = [np.require(a, requirements=("C", "W")) if isinstance(a, np.ndarray) and a is not t else a for a in args]
-    m = b.E.shape[0]
-    cuts = np.linspace(0, m, min(KERNEL_THREADS, max(1, m // 64)) + 1).astype(int)
-    if cuts.size == 2:
-        ring_newton(0, m, *args)
-    else:
-        with ThreadPoolExecutor(cuts.size - 1) as pool:
-            list(pool.map(lambda lo_hi: ring_newton(lo_hi[0], lo_hi[1], *args), zip(cuts[:-1], cuts[1:])))
+    in_slices(ring_newton, b.E.shape[0], args)
     return gain
+
+
+def in_slices(kernel, m: int, args: list, least: int = 64) -> None:
+    """``kernel(lo, hi, *args)`` over ``range(m)`` cut in :data:`KERNEL_THREADS` slices run in threads
+    (the kernels release the GIL and their slices write apart), or in one call below ``least`` per slice."""
+    cuts = np.linspace(0, m, min(KERNEL_THREADS, max(1, m // least)) + 1).astype(int)
+    if cuts.size == 2:
+        kernel(0, m, *args)
+        return
+    with ThreadPoolExecutor(cuts.size - 1) as pool:
+        list(pool.map(lambda lo_hi: kernel(lo_hi[0], lo_hi[1], *args), zip(cuts[:-1], cuts[1:])))
 
 
 @lru_cache(maxsize=None)

@@ -21,12 +21,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from elastoplast.bounds.edges import (LAM_MARGIN, element_context, lifted_stresses, ring_corrections,
-                                      ring_face_bases, ring_step, scaled_system)
+from elastoplast.bounds.edges import (LAM_MARGIN, element_context, in_slices, ring_corrections, ring_face_bases,
+                                      ring_step, scaled_system)
 from elastoplast.bounds.equilibrate import Faces, segment_ranges
 from elastoplast.bounds.lift import ElementMaps
 from elastoplast.bounds.rings import RingBatch
-from elastoplast.fem.material import von_mises
 
 #: L-BFGS pairs kept
 MEMORY = 10
@@ -152,41 +151,30 @@ class RingPreconditioner:
 def field_energy(maps: ElementMaps, faces: Faces, t: np.ndarray, volumes: np.ndarray, ctx: dict,
                  gradient: bool = True):
     """``(J, dJ/dt)`` of the facet tractions ``t (F, d, d)``: the lifted field's J (elements
-    and the obstacle term ``sum psi lam`` of the Γ0 facets) and its gradient (or None).
-    The per-mesh pieces (double Piola maps, facet scales, the element-facet-vertex index)
-    are kept in ``ctx`` after the first call."""
-    M, MA, sy, H, Dv = ctx["M"], ctx["MA"], ctx["sy"], ctx["H"], ctx["Dv"]
-    Lfull = ctx["ops"][0]
+    and the obstacle term ``sum psi lam`` of the Γ0 facets) and its gradient (or None), element
+    by element in compiled loops (:func:`~elastoplast.bounds.ring_kernel.field_energy_kernel`,
+    slices of the elements in threads). The per-mesh pieces (double Piola maps, facet scales,
+    the per-element buffers) are kept in ``ctx`` after the first call."""
+    from elastoplast.bounds.ring_kernel import add_element_gradients, field_energy_kernel
+
     n, d = maps.J.shape[:2]
-    d1, k = d + 1, ctx["T"].shape[0]
+    d1 = d + 1
     element_context(maps, ctx)
-    if "efa" not in ctx:
-        ctx["efa"] = np.nonzero(faces.slot >= 0)
-    TP, scale = ctx["TP"], ctx["scale"]
-    sig = lifted_stresses(maps, faces, t, np.arange(n), TP, scale, ctx)
-    w = volumes / d1
-    flat = sig.reshape(n, d1, d1 * k)
-    MAs = flat @ MA.T
-    J = 0.5 * float(w @ np.einsum("nsx,nsx->n", flat, MAs))
+    if "J_el" not in ctx:
+        ctx["sign"] = ctx.get("sign", faces.sign.astype(float))
+        ctx["J_el"] = np.empty(n)
+        ctx["g_el"] = np.zeros((n, d1, d1, d))
+    args = [np.ascontiguousarray(t), faces.face, faces.slot, ctx["sign"], maps.Jinv, ctx["scale"], ctx["ops"][0],
+            ctx["TP"], ctx["base"], volumes, ctx["A"], ctx["M"], float(ctx["sy"]), float(ctx["H"]), ctx["Dv"],
+            gradient, ctx["J_el"], ctx["g_el"]]
+    in_slices(field_energy_kernel, n, [np.require(a, requirements=("C", "W")) if isinstance(a, np.ndarray) else a
+                                       for a in args], least=1024)
     c = ctx["contact"]
-    J += float((ctx["psi"][c] * t[c, :, d - 1]).sum())
-    if H > 0:
-        sig4 = sig.reshape(n, d1, d1, k)
-        vm = von_mises(sig4)
-        eta = np.maximum(vm - sy, 0.0)
-        Me = eta @ M
-        J += 0.5 / H * float(w @ np.einsum("nsb,nsb->n", eta, Me))
+    J = float(ctx["J_el"].sum()) + float((ctx["psi"][c] * t[c, :, d - 1]).sum())
     if not gradient:
         return J, None
-    gs = MAs.reshape(n, d1 * d1, k) * w[:, None, None]
-    if H > 0:
-        nrm = np.where((eta > 0)[..., None], 1.5 * (sig4 @ Dv.T) / np.maximum(vm, 1e-300)[..., None], 0.0)
-        gs = gs + (Me[..., None] * nrm * (w / H)[:, None, None, None]).reshape(n, d1 * d1, k)
-    g_that = (np.matmul(gs, TP).reshape(n, -1) @ Lfull).reshape(n, d1, d1, d) * scale[:, :, None, None]
-    g_te = np.matmul(g_that, maps.Jinv[:, None])
-    e, i, a = ctx["efa"]
     g = np.zeros_like(t)
-    np.add.at(g, (faces.face[e, i], faces.slot[e, i, a]), faces.sign[e, i][:, None] * g_te[e, i, a])
+    add_element_gradients(ctx["g_el"], faces.face, faces.slot, ctx["sign"], g)
     g[c, :, d - 1] += ctx["psi"][c]
     return J, g
 

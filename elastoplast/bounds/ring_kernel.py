@@ -107,6 +107,114 @@ def _energy(sig, w, A, M, sy, H):
 
 
 @njit(cache=True, fastmath=FAST)
+def _stress_gradient(e, sq, w, A, M, sy, H, Dv, TP, gs, As, vm, eta, etaMs, nrm, dev, z):
+    """The gradient of ``J_e`` in element ``e``'s sub-vertex stresses ``sq (d1 d1, k)``: ``gs = w (M x A)
+    sq`` plus the plastic part ``w/H (eta M) n`` (``n = 1.5 dev sq / vm`` where ``eta > 0``: into ``nrm``),
+    and ``z = TP^T gs`` per sub-vertex, the gradient in the in-plane reference values; fills ``vm``,
+    ``eta``, ``etaMs = eta M``; True where some sub-vertex is plastic."""
+    d1 = M.shape[0]
+    k, mm = TP.shape[1], TP.shape[2]
+    plastic = False
+    for sb in range(d1 * d1):
+        vm[sb] = _von_mises(sq[sb], dev) if H > 0 else 0.0
+        eta[sb] = max(vm[sb] - sy, 0.0) if H > 0 else 0.0
+        if eta[sb] > 0:
+            plastic = True
+            for kk in range(k):
+                acc = 0.0
+                for ll in range(k):
+                    acc += Dv[kk, ll] * sq[sb, ll]
+                nrm[sb, kk] = 1.5 * acc / max(vm[sb], 1e-300)
+        else:
+            for kk in range(k):
+                nrm[sb, kk] = 0.0
+    for sb in range(d1 * d1):
+        for kk in range(k):
+            acc = 0.0
+            for ll in range(k):
+                acc += A[kk, ll] * sq[sb, ll]
+            As[sb, kk] = acc
+    for s_ in range(d1):
+        for b in range(d1):
+            sb = s_ * d1 + b
+            etaM = 0.0
+            for c in range(d1):
+                etaM += eta[s_ * d1 + c] * M[c, b]
+            etaMs[sb] = etaM
+            for kk in range(k):
+                acc = 0.0
+                for c in range(d1):
+                    acc += M[b, c] * As[s_ * d1 + c, kk]
+                gs[sb, kk] = w * acc + (w / H * etaM * nrm[sb, kk] if H > 0 else 0.0)
+    for sb in range(d1 * d1):
+        for p in range(mm):
+            acc = 0.0
+            for kk in range(k):
+                acc += gs[sb, kk] * TP[e, kk, p]
+            z[sb * mm + p] = acc
+    return plastic
+
+
+@njit(cache=True, fastmath=FAST, nogil=True)
+def field_energy_kernel(lo, hi, t, face, slot, sign, Jinv, scale, Lfull, TP, base, volumes, A, M, sy, H, Dv,
+                        gradient, J_el, g_el):
+    """Elements ``lo`` to ``hi`` of the lifted field's J (:func:`~elastoplast.bounds.frame.field_energy`):
+    ``J_el (n,)`` each element's ``J_e``, and, with ``gradient``, ``g_el (n, d1, d1, d)`` its gradient
+    in the element's outward vertex tractions (the caller adds them into the facets)."""
+    d = Jinv.shape[1]
+    d1 = d + 1
+    k, mm = TP.shape[1], TP.shape[2]
+    nte = d1 * d1 * d
+    sq = np.empty((d1 * d1, k))
+    gs = np.empty((d1 * d1, k))
+    As = np.empty((d1 * d1, k))
+    vm = np.empty(d1 * d1)
+    eta = np.empty(d1 * d1)
+    etaMs = np.empty(d1 * d1)
+    nrm = np.empty((d1 * d1, k))
+    dev = np.empty(k)
+    z = np.empty(d1 * d1 * mm)
+    gt = np.empty(nte)
+    for e in range(lo, hi):
+        w = volumes[e] / d1
+        _lift(e, t, face, slot, sign, Jinv, scale, Lfull, TP, base, sq)
+        J_el[e] = _energy(sq, w, A, M, sy, H)
+        if not gradient:
+            continue
+        _stress_gradient(e, sq, w, A, M, sy, H, Dv, TP, gs, As, vm, eta, etaMs, nrm, dev, z)
+        for x in range(nte):
+            gt[x] = 0.0
+        for S_ in range(d1 * d1 * mm):
+            zs = z[S_]
+            for x in range(nte):
+                gt[x] += zs * Lfull[S_, x]
+        for i in range(d1):
+            c = scale[e, i]
+            for a in range(d1):
+                for jj in range(d):
+                    acc = 0.0
+                    for ii in range(d):
+                        acc += gt[(i * d1 + a) * d + ii] * Jinv[e, ii, jj]
+                    g_el[e, i, a, jj] = c * acc
+
+
+@njit(cache=True)
+def add_element_gradients(g_el, face, slot, sign, g):
+    """``g (F, d, d) +=`` each element's gradient in its outward vertex tractions, into its facets' slots."""
+    n, d1 = face.shape
+    d = g.shape[2]
+    for e in range(n):
+        for i in range(d1):
+            f = face[e, i]
+            for a in range(d1):
+                sl = slot[e, i, a]
+                if sl < 0:
+                    continue
+                for jj in range(d):
+                    g[f, sl, jj] += sign[e, i] * g_el[e, i, a, jj]
+
+
+@njit(cache=True, fastmath=FAST)
 def _one_ring(ir, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, point, ell, ent, t, face, slot, sign,
               Jinv, scale, TP, base, volumes,
               A, M, sy, H, Dv, Lfull, Lsel, LselT, HQ, pairs, tri, AV, contact, psi, steps, ridge, lam_margin, gain):
@@ -158,45 +266,7 @@ def _one_ring(ir, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, p
         sq = sig[q]
         _lift(e, t, face, slot, sign, Jinv, scale, Lfull, TP, base, sq)
         J0 += _energy(sq, w, A, M, sy, H)
-        # gradient in the sub-vertex stresses: w (M x A) sig, plus the plastic part
-        plastic = False
-        for sb in range(d1 * d1):
-            vm[sb] = _von_mises(sq[sb], dev) if H > 0 else 0.0
-            eta[sb] = max(vm[sb] - sy, 0.0) if H > 0 else 0.0
-            if eta[sb] > 0:
-                plastic = True
-                for kk in range(k):
-                    acc = 0.0
-                    for ll in range(k):
-                        acc += Dv[kk, ll] * sq[sb, ll]
-                    nrm[sb, kk] = 1.5 * acc / max(vm[sb], 1e-300)
-            else:
-                for kk in range(k):
-                    nrm[sb, kk] = 0.0
-        for sb in range(d1 * d1):
-            for kk in range(k):
-                acc = 0.0
-                for ll in range(k):
-                    acc += A[kk, ll] * sq[sb, ll]
-                As[sb, kk] = acc
-        for s_ in range(d1):
-            for b in range(d1):
-                sb = s_ * d1 + b
-                etaM = 0.0
-                for c in range(d1):
-                    etaM += eta[s_ * d1 + c] * M[c, b]
-                etaMs[sb] = etaM
-                for kk in range(k):
-                    acc = 0.0
-                    for c in range(d1):
-                        acc += M[b, c] * As[s_ * d1 + c, kk]
-                    gs[sb, kk] = w * acc + (w / H * etaM * nrm[sb, kk] if H > 0 else 0.0)
-        for sb in range(d1 * d1):
-            for p in range(mm):
-                acc = 0.0
-                for kk in range(k):
-                    acc += gs[sb, kk] * TP[e, kk, p]
-                z[sb * mm + p] = acc
+        plastic = _stress_gradient(e, sq, w, A, M, sy, H, Dv, TP, gs, As, vm, eta, etaMs, nrm, dev, z)
         # Hessian in the selected element traction dofs: the elastic part through HQ
         for kk in range(k):
             for p2 in range(mm):

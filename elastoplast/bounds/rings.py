@@ -54,7 +54,8 @@ class RingBatch:
     (outward normal = o n_rot); ``F (m, kf)`` the ring faces (-1 pad), ``s (m, kf)`` their
     sign (stored traction = s tau), ``end (m, kf)`` boundary-face index 0/1 or -1, and
     ``Nb (m, 2 d d + nr, nq)`` the boundary rings' (u_0, u_1, rho) bases (identity on rho
-    for interior rings)."""
+    for interior rings; a batch holds interior rings only or rings through the boundary
+    only, :func:`ring_batches`, and an interior batch's ``Nb`` is one read-only broadcast array)."""
 
     ent: np.ndarray
     E: np.ndarray
@@ -163,19 +164,24 @@ def ring_batches(points, cells, grads, faces: Faces, rings: Rings, free: np.ndar
     use = rings.colour >= 0
     if active is not None:
         use &= active
+    # the rings through the boundary apart: the others' (u_0, u_1, rho) basis is the same identity, one
+    # broadcast array for a whole batch (it was 80% of the batches' memory, 3 kB per tetrahedron)
+    on_boundary = np.zeros(rings.n_ent, dtype=bool)
+    on_boundary[rings.elem_ent[(faces.face >= faces.n_interior)[:, LF].any(axis=2)]] = True
     out = []
     for c in range(int(rings.colour.max(initial=-1)) + 1):
-        group = np.flatnonzero(use & (rings.colour == c))
-        group = group[np.argsort(counts[group], kind="stable")]
-        i0 = 0
-        while i0 < group.size:
-            ke = int(counts[group[min(group.size - 1, i0 + max(1, max_elements // 8))]])
-            size = max(1, max_elements // max(ke, 1))
-            ents = group[i0: i0 + size]
-            i0 += size
-            b = _batch(ents, points, cells, grads, faces, rings, free, order, counts, starts, inc_e, inc_l, LV, LF)
-            if b is not None:
-                out.append(b)
+        for where in (False, True):
+            group = np.flatnonzero(use & (rings.colour == c) & (on_boundary == where))
+            group = group[np.argsort(counts[group], kind="stable")]
+            i0 = 0
+            while i0 < group.size:
+                ke = int(counts[group[min(group.size - 1, i0 + max(1, max_elements // 8))]])
+                size = max(1, max_elements // max(ke, 1))
+                ents = group[i0: i0 + size]
+                i0 += size
+                b = _batch(ents, points, cells, grads, faces, rings, free, order, counts, starts, inc_e, inc_l, LV, LF)
+                if b is not None:
+                    out.append(b)
     return out
 
 
@@ -340,10 +346,10 @@ def boundary_bases(points, faces: Faces, rings: Rings, ents, Fm, end, sf, free, 
     nr = d + (1 if d == 2 else 3)
     nbnd = (end >= 0).sum(axis=1)
     br = np.flatnonzero(nbnd == 2)
-    if br.size == 0:
-        Nb = np.zeros((m, 2 * dd + nr, nr))
-        Nb[:, 2 * dd:, :] = np.eye(nr)
-        return Nb
+    if br.size == 0:  # one read-only array for all: identity on rho
+        Nb = np.zeros((1, 2 * dd + nr, nr))
+        Nb[0, 2 * dd:, :] = np.eye(nr)
+        return np.broadcast_to(Nb, (m, 2 * dd + nr, nr))
     pos = np.argsort(np.where(end[br] >= 0, end[br], 99), axis=1)[:, :2]  # positions of ends 0, 1
     fb = np.take_along_axis(Fm[br], pos, axis=1)  # (mb, 2)
     X = points[faces.nodes[fb.ravel()]]

@@ -82,7 +82,7 @@ def test_ring_corrections_keep_every_element_balanced():
     mesh = disc.mesh
     maps, faces, free, rings, batches = _ring_setup(disc)
     rng = np.random.default_rng(0)
-    for b in batches[:6]:
+    for b in batches:  # interior batches and batches through the boundary (their own null spaces)
         B = ring_face_bases(b, mesh.points, faces, rings, 3)
         m, kf, _, nc = B.shape
         na = nc - b.Nb.shape[2]
@@ -98,6 +98,27 @@ def test_ring_corrections_keep_every_element_balanced():
             np.abs(np.where(free[:, None, :], 0.0, t)).max() == 0.0
         te = element_tractions(faces, t)
         assert np.isfinite(te).all()
+
+
+def test_interior_batches_share_one_basis_and_boundary_rings_have_their_own_batches():
+    """Each batch holds interior rings only (no ring face on the boundary; the (u_0, u_1, rho)
+    basis the identity on rho, one broadcast array: no memory per ring) or rings through the
+    boundary only (exactly two boundary faces each), and no ring is in two batches."""
+    disc = _quarter()
+    _, faces, _, rings, batches = _ring_setup(disc)
+    nr = 6
+    kinds = set()
+    for b in batches:
+        bnd = (b.F >= faces.n_interior).sum(axis=1)
+        interior = bool((bnd == 0).all())
+        assert interior or (bnd == 2).all()
+        kinds.add(interior)
+        if interior:
+            assert b.Nb.strides[0] == 0 and b.Nb.shape[2] == nr
+            assert np.array_equal(b.Nb[0, 18:], np.eye(nr)) and not b.Nb[0, :18].any()
+    assert kinds == {True, False}
+    ents = np.concatenate([b.ent for b in batches])
+    assert np.unique(ents).size == ents.size
 
 
 def _shipped(name, divisions):

@@ -230,7 +230,7 @@ def test_field_energy_is_the_sum_of_the_element_energies(quarter):
     rng = np.random.default_rng(4)
     t = rng.normal(size=(faces.nodes.shape[0], 3, 3)) * disc.material.yield_stress * 1.5
     J, _ = field_energy(maps, faces, t, disc.volumes, ctx, gradient=False)
-    element_context(maps, ctx)
+    element_context(maps, faces, ctx)
     n = disc.n_elements
     sig = lifted_stresses(maps, faces, t, np.arange(n), ctx["TP"], ctx["scale"], ctx).reshape(n, 4, 4, -1)
     el = element_energy(sig, disc.volumes / 4, ctx["MA"], ctx["M"], ctx["sy"], ctx["H"])

@@ -313,12 +313,9 @@ def compiled_ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, ri
     from elastoplast.bounds.ring_kernel import ring_newton
 
     d = maps.J.shape[1]
-    element_context(maps, ctx)
-    Lfull, sel, Lsel, HQ, HD, AV = ctx["ops"]
-    pairs, tri, HQp = packed_hessian_operator(d)
-    LselT = np.swapaxes(Lsel, 1, 2)
-    if "sign" not in ctx:
-        ctx["sign"] = faces.sign.astype(float)
+    element_context(maps, faces, ctx)
+    Lfull, _, _, _, _, AV = ctx["ops"]
+    pairs, tri, HQp, Lsel, LselT = packed_hessian_operator(d)
     gain = np.zeros(b.E.shape[0])
     args = [b.E, b.valid, b.le, b.lf, b.j, b.o.astype(float), b.F, b.s, b.end, b.Nb, d if d == 3 else 1, points,
             faces.nodes, rings.point, rings.ell, b.ent, t, faces.face, faces.slot, ctx["sign"],
@@ -344,10 +341,11 @@ def in_slices(kernel, m: int, args: list, least: int = 64) -> None:
 
 @lru_cache(maxsize=None)
 def packed_hessian_operator(d: int):
-    """``(pairs (np, 2), tri (nt, 2), HQp (n_le, nt, np))``: :func:`reference_operators`' ``HQ`` on the
-    pairs ``p <= q`` of the symmetric ``Q`` (the two orders summed) and the entries ``x <= y`` of
-    the symmetric element Hessian."""
-    _, sel, _, HQ, _, _ = reference_operators(d)
+    """``(pairs (np, 2), tri (nt, 2), HQp (n_le, nt, np), Lsel, LselT)``: :func:`reference_operators`'
+    ``HQ`` on the pairs ``p <= q`` of the symmetric ``Q`` (the two orders summed) and the entries
+    ``x <= y`` of the symmetric element Hessian; its ``Lsel (n_le, S, nsel)`` and the transpose
+    ``(n_le, nsel, S)``, both C-contiguous (what the compiled step reads)."""
+    _, sel, Lsel, HQ, _, _ = reference_operators(d)
     m = len(MANDEL_PAIRS[d])
     nsel = sel.shape[1]
     pairs = np.array([(p, q) for p in range(m) for q in range(p, m)], dtype=np.int64)
@@ -356,16 +354,19 @@ def packed_hessian_operator(d: int):
     both = H4 + np.swapaxes(H4, 1, 2) * 1.0
     both[:, np.arange(m), np.arange(m)] *= 0.5
     HQp = both[:, pairs[:, 0], pairs[:, 1]][:, :, tri[:, 0], tri[:, 1]]  # (n_le, np, nt)
-    return pairs, tri, np.ascontiguousarray(np.swapaxes(HQp, 1, 2))
+    return (pairs, tri, np.ascontiguousarray(np.swapaxes(HQp, 1, 2)), np.ascontiguousarray(Lsel),
+            np.ascontiguousarray(np.swapaxes(Lsel, 1, 2)))
 
 
-def element_context(maps: ElementMaps, ctx: dict) -> None:
+def element_context(maps: ElementMaps, faces: Faces, ctx: dict) -> None:
     """Keep in ``ctx`` what J's evaluation needs per element of the mesh: ``TP`` the double Piola
-    maps (:func:`piola`), ``scale`` the physical over reference facet measures."""
+    maps (:func:`piola`), ``scale`` the physical over reference facet measures, ``sign`` the
+    facets' orientations as floats (what the compiled loops read)."""
     if "TP" not in ctx:
         d = maps.J.shape[1]
         ctx["TP"] = piola(maps, np.arange(maps.J.shape[0]), ctx["T"])
         ctx["scale"] = maps.facet_areas / reference_lift(d).areas
+        ctx["sign"] = faces.sign.astype(float)
 
 
 def ring_corrections(B: np.ndarray, y: np.ndarray, nq: int) -> np.ndarray:

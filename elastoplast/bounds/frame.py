@@ -159,12 +159,11 @@ def field_energy(maps: ElementMaps, faces: Faces, t: np.ndarray, volumes: np.nda
 
     n, d = maps.J.shape[:2]
     d1 = d + 1
-    element_context(maps, ctx)
+    element_context(maps, faces, ctx)
     if "J_el" not in ctx:
-        ctx["sign"] = ctx.get("sign", faces.sign.astype(float))
         ctx["J_el"] = np.empty(n)
         ctx["g_el"] = np.zeros((n, d1, d1, d))
-    args = [np.ascontiguousarray(t), faces.face, faces.slot, ctx["sign"], maps.Jinv, ctx["scale"], ctx["ops"][0],
+    args = [t, faces.face, faces.slot, ctx["sign"], maps.Jinv, ctx["scale"], ctx["ops"][0],
             ctx["TP"], ctx["base"], volumes, ctx["A"], ctx["M"], float(ctx["sy"]), float(ctx["H"]), ctx["Dv"],
             gradient, ctx["J_el"], ctx["g_el"]]
     in_slices(field_energy_kernel, n, [np.require(a, requirements=("C", "W")) if isinstance(a, np.ndarray) else a

@@ -132,7 +132,8 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
         from elastoplast.bounds.ring_kernel import ring_newton
 
         # the first use on a machine compiles the sweeps (about half a minute, then cached): say so before the wait
-        report(0.15, "patches" if ring_newton.signatures else "patches; loading the compiled sweeps (compiled once per machine)")
+        report(0.15, "patches" if ring_newton.signatures
+               else "patches; loading the compiled sweeps (compiled once per machine)")
         t1 = time.perf_counter()
         offset = out_of_plane_offset(disc, sigma)
 

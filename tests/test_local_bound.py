@@ -323,3 +323,30 @@ def test_swept_field_certifies_where_the_round_off_was_refused():
     from elastoplast.bounds.local import split_discretization
 
     assert not certify_static(split_discretization(disc).disc, replace(lb.field, tau=tau)).passed
+
+
+def test_the_load_is_restored_after_the_sweeps(cylinder, monkeypatch):
+    """The pressure after the sweeps scaled by 1 + 1e-11 (the descent's held pressures once
+    left int lam 2e-12 of F off on an adapted cylinder mesh, refused at 1e-12): certified with
+    the load restored, int lam = F to round-off and the bound the clean one to that relative
+    size; refused for force_balance without the restoration."""
+    from elastoplast.bounds import edges
+
+    disc, sol, _ = cylinder
+    clean = local_lower_bound(disc, sol, n_sweeps=1, descent=0)
+    sweep = edges.ring_sweep
+
+    def drifted(points, cells, maps, faces, *args):
+        t = sweep(points, cells, maps, faces, *args)
+        cf = faces.n_interior + disc.facet_topology.contact_index
+        t[cf, :, disc.dim - 1] *= 1 + 1e-11
+        return t
+
+    monkeypatch.setattr(edges, "ring_sweep", drifted)
+    restored = local_lower_bound(disc, sol, n_sweeps=1, descent=0)
+    assert restored.certified, restored.message
+    assert restored.certificate.force_balance <= 1e-14
+    assert restored.lower == pytest.approx(clean.lower, rel=1e-9)
+    monkeypatch.setattr(local, "restore_load", lambda t, measure, cf, F: None)
+    drifting = local_lower_bound(disc, sol, n_sweeps=1, descent=0)
+    assert not drifting.certified and drifting.certificate.failed == ("force_balance",)

@@ -48,6 +48,11 @@ ARMIJO = 1e-4
 ZERO_PRESSURE = 1e-6
 #: the ridge added to the Gram matrix of the held pressures' rows (unit diagonal), for rows that depend on others
 HELD_RCOND = 1e-10
+#: at most this many projections in a row on the held pressures' rows, until their remainder is at most
+#: HELD_REST of the largest unknown (the ridge leaves ~ HELD_RCOND / s^2 of a row's component each pass,
+#: s the row's singular value: slow where rows of an adapted mesh's small facets nearly depend on others)
+HELD_PASSES = 20
+HELD_REST = 1e-15
 #: a held pressure's change at most this share of the step's largest pressure change is round-off
 HELD_ROUNDOFF = 1e-12
 
@@ -230,8 +235,11 @@ def pressure_projection(frame: RingFrame, t: np.ndarray, held: np.ndarray, conta
 
     def proj(y):
         y = y.copy()
-        for _ in range(2):  # once more on the remainder: the held pressures move by round-off only
+        for _ in range(HELD_PASSES):  # again on the remainder, until the held pressures move by round-off only
             y[cols] -= C.T @ gram.solve(C @ y[cols])
+            rest = np.abs(C @ y[cols]).max(initial=0.0)
+            if rest <= HELD_REST * np.abs(y[cols]).max(initial=0.0):
+                break
         return y
 
     return proj

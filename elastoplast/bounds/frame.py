@@ -277,8 +277,9 @@ def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray,
     rings' Hessians as the initial inverse (:class:`RingPreconditioner`, rebuilt when the
     memory is dropped), each step kept only where it lowers J enough (Armijo), capped so
     that the Γ0 pressures stay ``>= 0`` and with the pressures at zero that it would lower
-    held (:func:`pressure_projection`; those of one step held from the start of the next
-    while at zero, the set found afresh every :data:`HOLD_STEPS` steps); stops early once the predicted decrease is
+    held (:func:`pressure_projection`; those of one step, and those the cap brought to
+    zero in it, held from the start of the next while at zero, the set found afresh every
+    :data:`HOLD_STEPS` steps); stops early once the predicted decrease is
     negligible (:data:`DESCENT_RTOL`), or, given the ``upper`` bound of the same problem
     (``Pi``; the gap is ``upper + J``), once the last :data:`DESCENT_WINDOW` steps lowered J
     by less than :data:`DESCENT_GAP_SHARE` of the gap each on average. Returns the new
@@ -336,6 +337,8 @@ def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray,
             at = (np.flatnonzero(ctx["contact"])[stuck[:, 0]], stuck[:, 1], t.shape[2] - 1)
             new[at] = t[at]
         t = new
+        # the pressures this step brought to zero (the cap) are held from the next step on, like those held in it
+        held = np.concatenate([stuck, zero_pressures(t, dt, ctx["contact"], stuck)])
         J, g, gy = Jn, gn, gyn
         taken += 1
         history.append(J)

@@ -368,3 +368,19 @@ def test_a_solve_that_misses_only_the_local_bounds_tolerance_does_not_end_the_ru
     assert run.steps[1].n_elements > run.steps[0].n_elements and all(s.lower == "local" for s in run.steps)
     assert set(missed) == {s.n_elements for s in run.steps}  # the miss happened on every mesh
     assert run.solution.kkt.worst <= AdaptOptions().tol
+
+
+def test_cost_exponent_comes_from_the_whole_run():
+    """The costs (solve and local bound, seconds) of a 10-minute cylinder run with the local
+    bound: they grow about like N^1.2 over the run, but the descent's steps move them (21 s
+    at 17,637 triangles, 48 s at 17,839). The exponent is the whole run's least-squares
+    slope, not that of the last three steps (2.0, which predicted the next mesh at 385 s
+    and stopped the run with 368 s left); over steps of nearly one size it is not fitted."""
+    costs = {6400: 8.2, 6774: 15.3, 7891: 20.4, 11132: 31.4, 17637: 21.1, 17839: 47.6, 29556: 87.9}
+    steps = [row(n, seconds=0.0, lower=c) for n, c in costs.items()]
+    n, c = np.log(list(costs)), np.log(list(costs.values()))
+    whole, last3 = np.polyfit(n, c, 1)[0], np.polyfit(n[-3:], c[-3:], 1)[0]
+    assert 1.0 < whole < 1.5 and last3 > 2.0
+    assert predicted_seconds(steps, 36482, bracket=False) == pytest.approx(87.9 * (36482 / 29556)**whole, rel=1e-9)
+    narrow = [row(n, seconds=0.0, lower=costs[n]) for n in (17637, 17839)]
+    assert predicted_seconds(narrow, 36482, bracket=False) == pytest.approx(47.6 * (36482 / 17839)**1.5, rel=1e-9)

@@ -22,6 +22,9 @@ MIN_GROWTH = 1.25
 #: bisection steps on θ when the marked mesh does not fit a budget
 FIT_STEPS = 10
 
+#: the cost exponent is fitted only over steps whose sizes span at least this ratio (1.5 below)
+FIT_SPAN = 1.5
+
 
 def lower_bound_budget(dim: int, options: AdaptOptions, hardening: bool = True) -> tuple[str, int]:
     """``(what limits it, elements)``: the largest mesh the lower bound of ``options.lower``
@@ -69,11 +72,11 @@ def bracket_seconds(step: Step) -> float:
 def cost_model(steps: list[Step], bracket: bool) -> tuple[int, float, float]:
     """``(N_last, cost_last, a)`` of :func:`predicted_seconds`."""
     last = steps[-1]
-    same = [s for s in steps if s.lower == last.lower][-3:]  # "auto" switches lower bounds once
+    same = [s for s in steps if s.lower == last.lower]  # "auto" switches lower bounds once
     n = np.array([s.n_elements for s in same], dtype=float)
     cost = np.array([s.solve_seconds + s.lower_seconds for s in same])
     a = 1.5
-    if n.size >= 2 and n[-1] > n[0] and np.all(cost > 0):
+    if n.size >= 2 and n.max() >= FIT_SPAN * n.min() and np.all(cost > 0):
         a = float(np.clip(np.polyfit(np.log(n), np.log(cost), 1)[0], 1.0, 2.5))
     return last.n_elements, last.solve_seconds + last.lower_seconds + (bracket_seconds(last) if bracket else 0.0), a
 
@@ -82,10 +85,15 @@ def predicted_seconds(steps: list[Step], n_elements: int, bracket: bool) -> floa
     """The predicted cost of bounding a mesh of ``n_elements`` (with its U bracket
     when ``bracket``: :func:`bracket_seconds`), from the steps so far:
     ``cost(N) = cost_last (N / N_last)^a``, ``cost_last`` the last step's solves and
-    lower bound(s), ``a`` the slope of log(solves + lower bound) in log(N) over the
-    last three steps with the same lower bound as the last, kept in [1, 2.5] (the interior point's cost grows like
+    lower bound(s), ``a`` the least-squares slope of log(solves + lower bound) in log(N) over
+    all the steps with the same lower bound as the last, kept in [1, 2.5] (the interior point's cost grows like
     N^1.3-1.5 in 3D, benchmarks/bounds/lower.md; a slope outside that range is
-    timing noise), 1.5 after a single step."""
+    timing noise), 1.5 after a single step or while their sizes span less than
+    :data:`FIT_SPAN`. The local bound's cost also moves with the descent steps it takes
+    (13.8 s at 17,637 triangles and 41.3 s at 17,839 in one cylinder run): fitted over the
+    last three steps only, that noise gave slopes from -69 to 84 in a 10-minute cylinder run,
+    and another stopped with 368 s of its 600 left on a slope of 2.0 where the whole run's
+    was 1.2 (its next mesh then predicted at 385 s instead of 322)."""
     n_last, cost, a = cost_model(steps, bracket)
     return cost * (n_elements / n_last) ** a
 

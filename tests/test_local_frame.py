@@ -301,7 +301,6 @@ def test_a_pressure_the_cap_brings_to_zero_is_held_from_the_next_step(monkeypatc
     rule before the change held none of them): every pressure a step took to zero is among
     those the next step starts holding."""
     import elastoplast.bounds.frame as fr
-
     from elastoplast.bounds.bracket import LOCAL_SOLVE_TOL
 
     disc = build(cylinder_dict(divisions=(40, 20)))

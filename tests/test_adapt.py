@@ -13,7 +13,7 @@ import pytest
 import elastoplast as ep
 import elastoplast.adapt.loop as ad
 import elastoplast.cli.adapt as adapt_command
-from elastoplast.adapt.budget import FIT_STEPS, affordable_elements, next_mesh, predicted_seconds
+from elastoplast.adapt.budget import FIT_STEPS, affordable_elements, next_mesh, predicted_seconds, theta_marking
 from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate
 from elastoplast.cli.plots import outline_segments, plot_indicator, slice_polygons
 from elastoplast.adapt.loop import adapt, uniform
@@ -50,13 +50,15 @@ def test_element_budget_is_filled_not_overrun(coarse_cylinder, monkeypatch):
     calls = []
     next_mesh = ad.next_mesh
 
-    def recorded(mesh, state, eta, asked, allowed, adaptive):
-        out = next_mesh(mesh, state, eta, asked, allowed, adaptive)
+    def recorded(mesh, state, eta, asked, allowed, adaptive, min_growth):
+        assert min_growth == 1.0
+        out = next_mesh(mesh, state, eta, asked, allowed, adaptive, min_growth)
         calls.append((mesh, state, np.array(eta), asked, allowed, out))
         return out
 
     monkeypatch.setattr(ad, "next_mesh", recorded)
-    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, theta=theta, bracket="never", max_elements=budget))
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, theta=theta, bracket="never", max_elements=budget,
+                                              min_growth=1.0))
     assert "max_elements" in run.reason, run.reason
     sizes = [s.n_elements for s in run.steps]
     assert max(sizes) <= budget and sizes == sorted(sizes)
@@ -89,6 +91,58 @@ def test_element_budget_is_filled_not_overrun(coarse_cylinder, monkeypatch):
     assert lowered >= 1
 
 
+def test_theta_is_raised_until_each_mesh_grows_by_min_growth(coarse_cylinder, monkeypatch):
+    """θ = 0.5 grows the coarse cylinder's first mesh by 1.19 times (test above); with
+    ``min_growth`` = 1.5 every mesh has at least 1.5 times its predecessor's elements, marked
+    by Dörfler's rule for a θ at least the one asked; θ is raised only where the one asked
+    would not have grown the mesh enough; the element budget still caps the last mesh."""
+    growth, theta, budget = 1.5, 0.5, 2000
+    calls = []
+    next_mesh = ad.next_mesh
+
+    def recorded(mesh, state, eta, asked, allowed, adaptive, min_growth):
+        out = next_mesh(mesh, state, eta, asked, allowed, adaptive, min_growth)
+        calls.append((mesh, state, np.array(eta), asked, min_growth, out))
+        return out
+
+    monkeypatch.setattr(ad, "next_mesh", recorded)
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, theta=theta, bracket="never", max_elements=budget,
+                                              min_growth=growth))
+    sizes = [s.n_elements for s in run.steps]
+    assert max(sizes) <= budget and len(sizes) >= 3
+    raised = 0
+    for (mesh, state, eta, asked, min_growth, (nxt, wanted)), step in zip(calls, run.steps):
+        assert asked == theta and min_growth == growth
+        if nxt is None:
+            continue
+        new, _, marked, used = nxt
+        np.testing.assert_array_equal(marked, dorfler_mark(eta, used))
+        assert step.theta == used >= theta
+        if wanted <= budget:  # not lowered to fit: grown by the factor asked
+            assert new.n_elements >= growth * mesh.n_elements
+        if used > theta:
+            raised += 1
+            assert refine(mesh, dorfler_mark(eta, theta), state)[0].n_elements < growth * mesh.n_elements
+    assert raised >= 1
+
+
+def test_theta_marking_marks_the_largest_indicators():
+    eta = np.random.default_rng(3).permutation(np.arange(1.0, 101.0))  # distinct: no ties
+    for count in (1, 7, 50, 100):
+        marked = dorfler_mark(eta, theta_marking(eta, count))
+        assert marked.sum() == count and eta[marked].min() == 101 - count
+    assert theta_marking(eta, 0) == 0.0 and theta_marking(eta, 500) == 1.0
+
+
+def test_min_growth_beyond_uniform_marks_everything():
+    """A growth no marking reaches stops at θ = 1: every element with a positive indicator."""
+    mesh = ep.structured_mesh([8.0, 4.0], [8, 4], 1.0)
+    eta = np.linspace(1.0, 2.0, mesh.n_elements)
+    (new, _, marked, used), _ = next_mesh(mesh, None, eta, 0.3, 10**9, adaptive=True, min_growth=8.0)
+    assert used == 1.0 and marked.all()
+    assert new.n_elements == refine(mesh, np.ones(mesh.n_elements, dtype=bool))[0].n_elements
+
+
 def test_stops_at_the_lower_bounds_size_limit(coarse_cylinder):
     run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", lower_max_elements=250))
     assert "lower bound" in run.reason and run.final.n_elements <= 250
@@ -118,6 +172,34 @@ def test_final_bracket_is_skipped_when_it_would_overrun_the_time_limit(coarse_cy
     run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="final", time_limit=3600.0))
     assert run.reason.startswith("time_limit") and "no U bracket: it would take about 2000000 s" in run.reason
     assert math.isnan(run.final.U_lower) and math.isnan(run.final.U_upper)
+
+
+def test_final_bracket_falls_back_to_the_lower_bounds_of_the_mesh_before(coarse_cylinder, monkeypatch):
+    """When the last mesh's U bracket would not fit the time left but the one before's would,
+    the bracket takes its two lower bounds at F ∓ δ there, with the smaller upper bound at F.
+    Both brackets contain the continuum U, so the fallback must meet the last mesh's own
+    (computed here as well, on the same mesh)."""
+    run_at = {}
+    bound = ad._bound
+
+    def recorded(problem, options, step, start, bracket):
+        done = bound(problem, options, step, start, bracket)
+        run_at[step] = done
+        return done
+
+    monkeypatch.setattr(ad, "_bound", recorded)
+    monkeypatch.setattr(ad, "affordable_elements",  # one refinement, then nothing larger fits
+                        lambda steps, seconds, bracket: 10 * steps[-1].n_elements if len(steps) < 2 else 0)
+    monkeypatch.setattr(ad, "bracket_seconds", lambda step: 1e6 if step.step >= 1 else 0.0)
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="final", time_limit=3600.0))
+    assert [s.step for s in run.steps] == [0, 1], run.reason
+    final = run.final
+    assert "its lower bounds at F ∓ δ are those of step 0" in run.reason
+    assert final.bracket_step == 0 and final.certified and final.U_lower <= final.U_upper
+    assert "lower bounds at F ∓ δ of step 0" in final.line()
+    own = ad.with_bracket(run_at[1], AdaptOptions(rtol=1e-6)).row
+    assert own.bracket_step is None and own.certified
+    assert max(final.U_lower, own.U_lower) <= min(final.U_upper, own.U_upper)  # both hold U
 
 
 def test_uniform_comparison_is_skipped_when_its_first_mesh_would_overrun(tmp_path, monkeypatch, capsys):

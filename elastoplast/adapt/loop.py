@@ -193,6 +193,36 @@ def with_bracket(done: _Bounded, options: AdaptOptions) -> _Bounded:
     return replace(done, row=row)
 
 
+@dataclass(frozen=True)
+class _Earlier:
+    """What an earlier mesh leaves for a U bracket on it (its discretisation is rebuilt when
+    needed, so that it takes no memory while the next meshes are bounded)."""
+
+    row: Step
+    problem: Problem
+    solution: Solution
+    bounds: Bounds
+
+
+def bracket_from(done: _Bounded, earlier: _Earlier, options: AdaptOptions) -> _Bounded:
+    """``done`` with a U bracket whose two lower bounds at ``F ∓ δ`` are bounded on an earlier
+    mesh, and whose upper bound at F is the smaller of the two meshes' (each bounds the same
+    ``Pi*(F)``, so the secants of :func:`~elastoplast.bounds.bracket.u_secants` hold with
+    any mix). δ is chosen for the earlier mesh's lower bound against that upper bound."""
+    from elastoplast.bounds.bracket import u_bracket_of
+
+    t0 = time.perf_counter()
+    disc = discretize(earlier.problem)
+    b = earlier.bounds
+    b = replace(b, energy_upper=min(b.energy_upper, done.bounds.energy_upper))
+    lo, hi, _, certified = u_bracket_of(disc, b, earlier.solution.U, _lower_options(options),
+                                        solution=earlier.solution, method=options.method)
+    seconds = time.perf_counter() - t0
+    row = replace(done.row, U_lower=lo, U_upper=hi, certified=done.row.certified and certified,
+                  bracket_seconds=seconds, seconds=done.row.seconds + seconds, bracket_step=earlier.row.step)
+    return replace(done, row=row)
+
+
 def bound_mesh(problem: Problem, options: AdaptOptions, *, bracket: bool, step: int = 0,
                t_start: float | None = None) -> tuple[Step, Discretization, Solution, Bounds]:
     """Solve and bound one mesh, cold: the :class:`Step` row and what it was computed from
@@ -255,6 +285,7 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
         raise InputError("mesh", f"{mesh.n_elements:,} elements: above {lower_name} ({lower_limit:,} elements for "
                                  "its lower bounds in a row); start from a coarser mesh")
     final_bracket = options.bracket == "final"
+    earlier = None  # the last mesh before this one, for a U bracket there when this one's does not fit
     reason = f"max_iter = {options.max_iter} meshes solved"
     for k in range(options.max_iter):
         t0 = time.perf_counter()
@@ -285,7 +316,7 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
                 left = options.time_limit - elapsed
                 budgets["time_limit"] = affordable_elements(steps + [row], left, options.bracket != "never")
             allowed = min(budgets.values())
-            nxt, wanted = next_mesh(mesh, state, eta, options.theta, allowed, adaptive)
+            nxt, wanted = next_mesh(mesh, state, eta, options.theta, allowed, adaptive, options.min_growth)
             if nxt is None:
                 name = min(budgets, key=budgets.get)
                 stop = f"{name}: the next mesh would have {wanted:,} elements"
@@ -300,8 +331,15 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
             # the bracket is two more lower bounds, each about as long as this mesh's: not past the limit
             left = math.inf if options.time_limit is None else options.time_limit - (time.perf_counter() - t_start)
             if final_bracket and math.isnan(row.U_lower) and bracket_seconds(row) > left:
-                stop += (f"; no U bracket: the time limit is spent" if left <= 0 else
-                         f"; no U bracket: it would take about {bracket_seconds(row):.0f} s, {left:.0f} s left")
+                if earlier is not None and bracket_seconds(earlier.row) <= left:
+                    stop += (f"; this mesh's U bracket would take about {bracket_seconds(row):.0f} s, "
+                             f"{left:.0f} s left: its lower bounds at F ∓ δ are those of step {earlier.row.step} "
+                             f"({earlier.row.n_elements:,} elements)")
+                    done = bracket_from(done, earlier, options)
+                else:
+                    stop += (f"; no U bracket: the time limit is spent" if left <= 0 else
+                             f"; no U bracket: it would take about {bracket_seconds(row):.0f} s, {left:.0f} s "
+                             "left")
             elif final_bracket and math.isnan(row.U_lower):
                 done = with_bracket(done, options)
             row = replace(done.row, seconds=time.perf_counter() - t0)
@@ -315,6 +353,7 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
         steps.append(row)
         if report is not None:
             report(row)
+        earlier = _Earlier(row=row, problem=done.disc.problem, solution=done.solution, bounds=done.bounds)
         if options.warm_start:
             start = (_prolonged(done.solution, new_state),
                      None if done.conservative is None else _prolonged(done.conservative, new_state))

@@ -38,6 +38,8 @@ class AdaptOptions(SolverOptions):
                          lo_open=True)
     theta: float = option(0.5, float, "Dörfler parameter: mark the smallest set carrying this share of the gap",
                           lo=0.0, hi=1.0, lo_open=True)
+    min_growth: float = option(1.5, float, "raise θ until each new mesh has at least this many times the elements "
+                               "(1: keep θ)", lo=1.0, hi=8.0)
     max_elements: int = option(2_000_000, int, "stop before a mesh with more elements", lo=1, hi=100_000_000)
     method: str = option("newton", str, "the P1 solver", choices=("conic", "newton", "uzawa", "uzawa-fast"))
     bracket: str = option("final", str, "U bracket on the final mesh only, at every step, or never",
@@ -62,7 +64,9 @@ class Step:
     one, ``"global"`` or ``"local"``), ``bracket_seconds`` the two at ``F ∓ δ`` (with the
     local bound, their P1 solves too); ``iterations`` the solver
     iterations of the P1 solve of the problem; ``theta`` the Dörfler parameter
-    the marking used (lowered to fit a budget), ``marked`` the elements it marked.
+    the marking used (raised to grow the mesh, lowered to fit a budget), ``marked`` the
+    elements it marked; ``bracket_step`` the step whose mesh gave the U bracket's lower
+    bounds at ``F ∓ δ`` (None: this one's).
     """
 
     step: int
@@ -84,12 +88,15 @@ class Step:
     theta: float = math.nan
     #: the lower bound used: "global" (the equilibrium-element program) or "local"
     lower: str = "global"
+    bracket_step: int | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
 
     def line(self) -> str:
         bracket = "" if math.isnan(self.U_lower) else f"  U in [{self.U_lower:.6g}, {self.U_upper:.6g}]"
+        if bracket and self.bracket_step is not None:
+            bracket += f" (lower bounds at F ∓ δ of step {self.bracket_step})"
         flag = "" if self.certified else "  (NOT certified)"
         return (f"step {self.step:2d}  {self.n_elements:9,d} elements  lower {self.energy_lower:.8g}  "
                 f"upper {self.energy_upper:.8g}  gap {self.gap_rel:.3e}{bracket}  {self.seconds:.1f} s  "

@@ -273,7 +273,8 @@ def _adapt(args: argparse.Namespace) -> int:
         method, method_field = table.get("method", AdaptOptions().method), "solver.method"
     from_file = {"tol": table["tol"]} if "tol" in table else {}
     AdaptOptions.build(from_file, prefix="solver.")  # the range of adapt's P1 tolerance, named as written
-    given = {k: v for k, v in (("rtol", args.rtol), ("theta", args.theta), ("max_elements", args.max_elements),
+    given = {k: v for k, v in (("rtol", args.rtol), ("theta", args.theta), ("min_growth", args.min_growth),
+                               ("max_elements", args.max_elements),
                                ("time_limit", args.time_limit), ("bracket", args.bracket), ("lower", args.lower),
                                ("lower_descent", args.descent))
              if v is not None}

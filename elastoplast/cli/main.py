@@ -78,6 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
     p.add_argument("--rtol", type=float, help="target relative energy gap (default: 1e-3)")
     p.add_argument("--theta", type=float, help="Dörfler parameter (default: 0.5)")
+    p.add_argument("--min-growth", type=float, help="raise θ until each new mesh has at least this many times the "
+                                                    "elements (default: 1.5; 1 keeps θ)")
     p.add_argument("--max-elements", type=int, help="element budget (default: 2,000,000)")
     p.add_argument("--time-limit", type=float, help="time budget in seconds, checked between meshes (the first mesh "
                                                     "is always solved and bounded)")

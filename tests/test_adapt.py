@@ -14,7 +14,7 @@ import elastoplast as ep
 import elastoplast.adapt.loop as ad
 import elastoplast.cli.adapt as adapt_command
 from elastoplast.adapt.budget import FIT_STEPS, affordable_elements, next_mesh, predicted_seconds, theta_marking
-from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate
+from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate, run_bracket
 from elastoplast.cli.plots import outline_segments, plot_indicator, slice_polygons
 from elastoplast.adapt.loop import adapt, uniform
 from elastoplast.errors import InputError
@@ -200,6 +200,46 @@ def test_final_bracket_falls_back_to_the_lower_bounds_of_the_mesh_before(coarse_
     own = ad.with_bracket(run_at[1], AdaptOptions(rtol=1e-6)).row
     assert own.bracket_step is None and own.certified
     assert max(final.U_lower, own.U_lower) <= min(final.U_upper, own.U_upper)  # both hold U
+
+
+def test_the_run_bracket_takes_the_best_bound_of_each_side():
+    """Every certified mesh of a run bounds the same Pi*, so the largest lower and the smallest
+    upper bound, from different meshes, are a bracket; an uncertified mesh does not count."""
+    steps = [replace(row(100), step=0, energy_lower=-10.0, energy_upper=-5.0),
+             replace(row(200), step=1, energy_lower=-8.0, energy_upper=-5.5),
+             replace(row(400), step=2, energy_lower=-9.0, energy_upper=-6.0),
+             replace(row(800), step=3, energy_lower=-6.5, energy_upper=-6.2, certified=False)]
+    b = run_bracket(steps)
+    assert (b.lower, b.upper, b.lower_step, b.upper_step, b.certified) == (-8.0, -6.0, 1, 2, True)
+    assert b.gap_rel == pytest.approx(2.0 / 6.0, rel=1e-15)
+    alone = run_bracket(steps[3:])
+    assert not alone.certified and (alone.lower, alone.upper) == (-6.5, -6.2)
+
+
+def test_the_loop_stops_on_the_run_bracket(coarse_cylinder, monkeypatch):
+    """A later mesh whose lower bound is weaker (made so here, as the local bound's descent or
+    the switch of --lower auto can make it) does not hide the earlier one: the loop stops once
+    the earlier lower bound and the later upper bound are within rtol, though the later
+    mesh's own gap is not."""
+    bound = ad._bound
+
+    def weaker_later(problem, options, step, start, bracket):
+        done = bound(problem, options, step, start, bracket)
+        if step == 0:
+            return done
+        r = done.row
+        lower = r.energy_lower - 0.5 * abs(r.energy_upper)
+        return replace(done, row=replace(r, energy_lower=lower, gap_rel=(r.energy_upper - lower) / abs(r.energy_upper)))
+
+    monkeypatch.setattr(ad, "_bound", weaker_later)
+    first = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="never", max_iter=2))
+    own = [s.gap_rel for s in first.steps]
+    over_run = run_bracket(first.steps)
+    assert (over_run.lower_step, over_run.upper_step) == (0, 1) and over_run.gap_rel < min(own)
+    rtol = 0.5 * (over_run.gap_rel + min(own))
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=rtol, bracket="never", max_iter=5))
+    assert len(run.steps) == 2 and run.final.gap_rel > rtol >= run.bracket.gap_rel
+    assert "over the run" in run.reason and "lower bound of step 0, upper bound of step 1" in run.reason
 
 
 def test_uniform_comparison_is_skipped_when_its_first_mesh_would_overrun(tmp_path, monkeypatch, capsys):

@@ -75,7 +75,7 @@ from elastoplast.adapt.budget import (
     lower_bound_budget,
     next_mesh,
 )
-from elastoplast.adapt.records import AdaptOptions, AdaptResult, Step
+from elastoplast.adapt.records import AdaptOptions, AdaptResult, Step, run_bracket
 from elastoplast.bounds.bracket import Bounds, element_indicators
 from elastoplast.bounds.upper import conservative_discretization
 from elastoplast.certificate.solution import Solution
@@ -178,14 +178,16 @@ def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solu
     return with_bracket(done, options) if bracket else done
 
 
-def with_bracket(done: _Bounded, options: AdaptOptions) -> _Bounded:
+def with_bracket(done: _Bounded, options: AdaptOptions, upper: float = math.inf) -> _Bounded:
     """``done`` with its U bracket (:func:`~elastoplast.bounds.bracket.u_bracket_of`: two more
     lower bounds, at ``F ∓ δ``, as the ``bounds`` command does: no P1 solve for the global
-    program, two warm-started ones by ``options.method`` for the local bound)."""
+    program, two warm-started ones by ``options.method`` for the local bound). ``upper``: an
+    upper bound of ``Pi*(F)`` from another mesh of the run, used where it is smaller."""
     from elastoplast.bounds.bracket import u_bracket_of
 
     t0 = time.perf_counter()
     disc, sol, b = done.disc, done.solution, done.bounds
+    b = replace(b, energy_upper=min(b.energy_upper, upper))
     lo, hi, _, certified = u_bracket_of(disc, b, sol.U, _lower_options(options), solution=sol, method=options.method)
     seconds = time.perf_counter() - t0
     row = replace(done.row, U_lower=lo, U_upper=hi, certified=done.row.certified and certified,
@@ -204,17 +206,17 @@ class _Earlier:
     bounds: Bounds
 
 
-def bracket_from(done: _Bounded, earlier: _Earlier, options: AdaptOptions) -> _Bounded:
+def bracket_from(done: _Bounded, earlier: _Earlier, options: AdaptOptions, upper: float = math.inf) -> _Bounded:
     """``done`` with a U bracket whose two lower bounds at ``F ∓ δ`` are bounded on an earlier
-    mesh, and whose upper bound at F is the smaller of the two meshes' (each bounds the same
-    ``Pi*(F)``, so the secants of :func:`~elastoplast.bounds.bracket.u_secants` hold with
-    any mix). δ is chosen for the earlier mesh's lower bound against that upper bound."""
+    mesh, and whose upper bound at F is the smallest of the two meshes' and ``upper`` (each
+    bounds the same ``Pi*(F)``, so the secants of :func:`~elastoplast.bounds.bracket.u_secants`
+    hold with any mix). δ is chosen for the earlier mesh's lower bound against that upper bound."""
     from elastoplast.bounds.bracket import u_bracket_of
 
     t0 = time.perf_counter()
     disc = discretize(earlier.problem)
     b = earlier.bounds
-    b = replace(b, energy_upper=min(b.energy_upper, done.bounds.energy_upper))
+    b = replace(b, energy_upper=min(b.energy_upper, done.bounds.energy_upper, upper))
     lo, hi, _, certified = u_bracket_of(disc, b, earlier.solution.U, _lower_options(options),
                                         solution=earlier.solution, method=options.method)
     seconds = time.perf_counter() - t0
@@ -303,7 +305,10 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
         row = done.row
         stop = None
         elapsed = time.perf_counter() - t_start
-        if row.gap_rel <= options.rtol:
+        run = run_bracket(steps + [row])
+        if run.certified and run.gap_rel < row.gap_rel and run.gap_rel <= options.rtol:
+            stop = f"relative gap {run.gap_rel:.3e} <= rtol {options.rtol:g} ({run.line()})"
+        elif row.gap_rel <= options.rtol:
             stop = f"relative gap {row.gap_rel:.3e} <= rtol {options.rtol:g}"
         elif k == options.max_iter - 1:
             stop = reason
@@ -328,6 +333,7 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
                 if adaptive:
                     stop += f", and no smaller θ gives {MIN_GROWTH:g}x the {mesh.n_elements:,} elements within it"
         if stop is not None:
+            best_upper = run.upper if run.certified else math.inf
             # the bracket is two more lower bounds, each about as long as this mesh's: not past the limit
             left = math.inf if options.time_limit is None else options.time_limit - (time.perf_counter() - t_start)
             if final_bracket and math.isnan(row.U_lower) and bracket_seconds(row) > left:
@@ -335,13 +341,13 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
                     stop += (f"; this mesh's U bracket would take about {bracket_seconds(row):.0f} s, "
                              f"{left:.0f} s left: its lower bounds at F ∓ δ are those of step {earlier.row.step} "
                              f"({earlier.row.n_elements:,} elements)")
-                    done = bracket_from(done, earlier, options)
+                    done = bracket_from(done, earlier, options, best_upper)
                 else:
                     stop += (f"; no U bracket: the time limit is spent" if left <= 0 else
                              f"; no U bracket: it would take about {bracket_seconds(row):.0f} s, {left:.0f} s "
                              "left")
             elif final_bracket and math.isnan(row.U_lower):
-                done = with_bracket(done, options)
+                done = with_bracket(done, options, best_upper)
             row = replace(done.row, seconds=time.perf_counter() - t0)
             steps.append(row)
             if report is not None:

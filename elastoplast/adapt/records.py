@@ -120,6 +120,52 @@ class AdaptResult:
     def final(self) -> Step:
         return self.steps[-1]
 
+    @property
+    def bracket(self) -> "RunBracket":
+        """The energy bracket of the whole run (:func:`run_bracket`)."""
+        return run_bracket(self.steps)
+
+
+@dataclass(frozen=True)
+class RunBracket:
+    """``lower <= Pi* <= upper`` over a run: the largest lower and the smallest upper bound of
+    its certified meshes (``lower_step``, ``upper_step``), ``gap_rel = (upper - lower) / |upper|``."""
+
+    lower: float
+    upper: float
+    gap_rel: float
+    lower_step: int
+    upper_step: int
+    certified: bool
+
+    def as_dict(self) -> dict[str, Any]:
+        """The keys ``summary.json`` gains."""
+        return {"run_energy_lower": self.lower, "run_energy_upper": self.upper, "run_gap_rel": self.gap_rel,
+                "run_lower_step": self.lower_step, "run_upper_step": self.upper_step}
+
+    def line(self) -> str:
+        return (f"over the run: energy in [{self.lower:.8g}, {self.upper:.8g}], relative gap {self.gap_rel:.3e} "
+                f"(lower bound of step {self.lower_step}, upper bound of step {self.upper_step})")
+
+
+def run_bracket(steps: tuple[Step, ...] | list[Step]) -> RunBracket:
+    """The bracket of a run. Every mesh of a run covers the same domain with the same data,
+    so each certified mesh's lower and upper bounds bound the same continuum ``Pi*``, and
+    the largest lower bound and the smallest upper bound, from whichever meshes, are a
+    bracket too. The local lower bound is not monotone along a run (how far its descent gets
+    varies from mesh to mesh, and ``adapt --lower auto`` moves from the global program to it),
+    so the best lower bound need not be the last mesh's. Without a certified mesh: the last
+    mesh's own, not certified."""
+    certified = [s for s in steps if s.certified]
+    if not certified:
+        last = steps[-1]
+        return RunBracket(last.energy_lower, last.energy_upper, last.gap_rel, last.step, last.step, False)
+    lo = max(certified, key=lambda s: s.energy_lower)
+    hi = min(certified, key=lambda s: s.energy_upper)
+    gap = hi.energy_upper - lo.energy_lower
+    rel = gap / abs(hi.energy_upper) if hi.energy_upper != 0 else math.inf
+    return RunBracket(lo.energy_lower, hi.energy_upper, float(rel), lo.step, hi.step, True)
+
 
 def fitted_rate(steps: tuple[Step, ...] | list[Step], last: int | None = None) -> float:
     """The exponent p of ``gap_rel ~ elements^(-p)``, least squares over the steps

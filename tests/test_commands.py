@@ -196,11 +196,16 @@ def test_adapt_command_writes_table_plot_meshes_and_final_solution(tmp_path, cap
     assert again.n_elements == final["n_elements"] and "contact" in again.groups
     s = strict_json(out / "summary.json")
     assert s["energy_gap_rel"] == pytest.approx(final["gap_rel"], rel=1e-12)
+    rows = [r for r in record["adaptive"] if r["certified"]]  # the run's bracket: the best of each side
+    assert s["run_energy_lower"] == max(r["energy_lower"] for r in rows)
+    assert s["run_energy_upper"] == min(r["energy_upper"] for r in rows)
+    assert s["run_gap_rel"] <= s["energy_gap_rel"] * (1 + 1e-12)
 
 
 def test_adapt_refuses_bad_options(tmp_path, capsys):
     problem = write_toml(tmp_path / "p.toml", small_cylinder())
     for flags, field in ((["--rtol", "0"], "--rtol"), (["--theta", "1.5"], "--theta"),
+                         (["--min-growth", "0.5"], "--min-growth"), (["--min-growth", "nan"], "--min-growth"),
                          (["--max-elements", "-5"], "--max-elements"), (["--method", "nope"], "--method")):
         code = main(["adapt", str(problem), "--out", str(tmp_path / "a"), "--quiet", *flags])
         err = capsys.readouterr().err.strip().splitlines()

@@ -12,6 +12,7 @@ import pytest
 
 import elastoplast as ep
 import elastoplast.adapt.loop as ad
+import elastoplast.bounds.bracket as bracket_module
 import elastoplast.cli.adapt as adapt_command
 from elastoplast.adapt.budget import FIT_STEPS, affordable_elements, next_mesh, predicted_seconds, theta_marking
 from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate, run_bracket
@@ -132,6 +133,32 @@ def test_theta_marking_marks_the_largest_indicators():
         marked = dorfler_mark(eta, theta_marking(eta, count))
         assert marked.sum() == count and eta[marked].min() == 101 - count
     assert theta_marking(eta, 0) == 0.0 and theta_marking(eta, 500) == 1.0
+    rng = np.random.default_rng(4)  # sums that round: θ times the total must not pass the next indicator
+    for _ in range(200):
+        eta = rng.random(300) ** 3
+        count = int(rng.integers(1, 300))
+        marked = dorfler_mark(eta, theta_marking(eta, count))
+        assert marked.sum() == count and np.all(eta[marked] > eta[~marked].max())
+
+
+def test_a_raised_theta_is_fitted_back_to_the_budget():
+    """The mesh of the θ asked fits the element budget, the one raised to min_growth does not:
+    θ is raised towards the budget only, or brought back between the two, never below the
+    one asked, whose mesh fits, even when that mesh grows by less than MIN_GROWTH."""
+    mesh = ep.structured_mesh([8.0, 4.0], [16, 8], 1.0)
+    eta = np.random.default_rng(1).random(mesh.n_elements) ** 4
+    n_asked = next_mesh(mesh, None, eta, 0.5, 10**9, True)[0][0].n_elements
+    (raised, _, _, t_raised), _ = next_mesh(mesh, None, eta, 0.5, 10**9, True, min_growth=3.0)
+    assert n_asked < raised.n_elements and t_raised > 0.5
+    allowed = (n_asked + raised.n_elements) // 2
+    (fit, _, marked, t_fit), wanted = next_mesh(mesh, None, eta, 0.5, allowed, True, min_growth=3.0)
+    assert n_asked <= fit.n_elements <= min(allowed, wanted) and 0.5 <= t_fit < t_raised
+    np.testing.assert_array_equal(marked, dorfler_mark(eta, t_fit))
+    small = 0.02  # a θ whose mesh grows by less than MIN_GROWTH, with a budget only it fits
+    (few, _, _, t_few), _ = next_mesh(mesh, None, eta, small, 10**9, True)
+    assert few.n_elements < 1.25 * mesh.n_elements
+    got, _ = next_mesh(mesh, None, eta, small, few.n_elements, True, min_growth=3.0)
+    assert got is not None and got[0].n_elements == few.n_elements and got[3] == small
 
 
 def test_min_growth_beyond_uniform_marks_everything():
@@ -174,6 +201,23 @@ def test_final_bracket_is_skipped_when_it_would_overrun_the_time_limit(coarse_cy
     assert math.isnan(run.final.U_lower) and math.isnan(run.final.U_upper)
 
 
+def forced_fallback(monkeypatch) -> list:
+    """One refinement, then nothing larger fits, and only the first mesh's U bracket fits the
+    time left; returns the list of the upper bounds at F that the U brackets are given."""
+    monkeypatch.setattr(ad, "affordable_elements",
+                        lambda steps, seconds, bracket: 10 * steps[-1].n_elements if len(steps) < 2 else 0)
+    monkeypatch.setattr(ad, "bracket_seconds", lambda step: 1e6 if step.step >= 1 else 0.0)
+    uppers = []
+    u_bracket_of = bracket_module.u_bracket_of
+
+    def recorded_bracket(disc, b, *args, **kwargs):
+        uppers.append(b.energy_upper)
+        return u_bracket_of(disc, b, *args, **kwargs)
+
+    monkeypatch.setattr(bracket_module, "u_bracket_of", recorded_bracket)
+    return uppers
+
+
 def test_final_bracket_falls_back_to_the_lower_bounds_of_the_mesh_before(coarse_cylinder, monkeypatch):
     """When the last mesh's U bracket would not fit the time left but the one before's would,
     the bracket takes its two lower bounds at F ∓ δ there, with the smaller upper bound at F.
@@ -188,11 +232,10 @@ def test_final_bracket_falls_back_to_the_lower_bounds_of_the_mesh_before(coarse_
         return done
 
     monkeypatch.setattr(ad, "_bound", recorded)
-    monkeypatch.setattr(ad, "affordable_elements",  # one refinement, then nothing larger fits
-                        lambda steps, seconds, bracket: 10 * steps[-1].n_elements if len(steps) < 2 else 0)
-    monkeypatch.setattr(ad, "bracket_seconds", lambda step: 1e6 if step.step >= 1 else 0.0)
+    uppers = forced_fallback(monkeypatch)
     run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="final", time_limit=3600.0))
     assert [s.step for s in run.steps] == [0, 1], run.reason
+    assert uppers == [min(s.energy_upper for s in run.steps)]  # the smaller upper bound at F
     final = run.final
     assert "its lower bounds at F ∓ δ are those of step 0" in run.reason
     assert final.bracket_step == 0 and final.certified and final.U_lower <= final.U_upper
@@ -200,6 +243,25 @@ def test_final_bracket_falls_back_to_the_lower_bounds_of_the_mesh_before(coarse_
     own = ad.with_bracket(run_at[1], AdaptOptions(rtol=1e-6)).row
     assert own.bracket_step is None and own.certified
     assert max(final.U_lower, own.U_lower) <= min(final.U_upper, own.U_upper)  # both hold U
+
+
+def test_the_fallback_bracket_ignores_an_uncertified_upper_bound(coarse_cylinder, monkeypatch):
+    """An earlier mesh whose bounds are not certified (made so here, with an upper bound far
+    below any energy) gives its lower bounds at F ∓ δ, but not its upper bound at F."""
+    bound = ad._bound
+
+    def uncertified_first(problem, options, step, start, bracket):
+        done = bound(problem, options, step, start, bracket)
+        if step > 0:
+            return done
+        return replace(done, row=replace(done.row, certified=False, energy_upper=-1e9),
+                       bounds=replace(done.bounds, energy_upper=-1e9))
+
+    monkeypatch.setattr(ad, "_bound", uncertified_first)
+    uppers = forced_fallback(monkeypatch)
+    run = adapt(coarse_cylinder, AdaptOptions(rtol=1e-6, bracket="final", time_limit=3600.0))
+    assert run.final.bracket_step == 0 and uppers == [run.final.energy_upper]
+    assert run.bracket.lower_step == run.bracket.upper_step == 1  # the uncertified row is left out
 
 
 def test_the_run_bracket_takes_the_best_bound_of_each_side():
@@ -214,6 +276,8 @@ def test_the_run_bracket_takes_the_best_bound_of_each_side():
     assert b.gap_rel == pytest.approx(2.0 / 6.0, rel=1e-15)
     alone = run_bracket(steps[3:])
     assert not alone.certified and (alone.lower, alone.upper) == (-6.5, -6.2)
+    crossed = run_bracket([steps[0], replace(steps[1], energy_lower=-4.0)])  # -4 > -5: one is no bound
+    assert not crossed.certified and crossed.gap_rel < 0
 
 
 def test_the_loop_stops_on_the_run_bracket(coarse_cylinder, monkeypatch):

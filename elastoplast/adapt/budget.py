@@ -112,24 +112,30 @@ def affordable_elements(steps: list[Step], seconds: float, bracket: bool) -> int
 
 
 def theta_marking(eta: np.ndarray, count: int) -> float:
-    """The θ whose Dörfler set is the ``count`` largest indicators (and their ties): their
-    share of the total."""
+    """The θ whose Dörfler set is the ``count`` largest indicators (and their ties): halfway
+    between the shares of the ``count - 1`` and the ``count`` largest, so that the rounding
+    of ``θ`` times the total cannot move the set by one."""
     ordered = np.sort(eta)[::-1]
-    total = float(ordered.sum())
+    cumulative = np.cumsum(ordered)
+    total = float(cumulative[-1]) if eta.size else 0.0
     if count <= 0 or total <= 0.0:
         return 0.0
-    return min(1.0, float(np.sum(ordered[:count])) / total)
+    if count >= eta.size:
+        return 1.0
+    below = float(cumulative[count - 2]) if count >= 2 else 0.0
+    return min(1.0, 0.5 * (below + float(cumulative[count - 1])) / total)
 
 
-def raised_theta(mesh: Mesh, state: BisectionState | None, eta: np.ndarray, theta: float, growth: float):
-    """``(mesh, state, marked, θ)``: Dörfler's ``theta`` raised, when its mesh has fewer
-    than ``growth`` times the elements, until it has that many (or θ = 1, or
-    :data:`RAISE_STEPS` refinements). Each try marks the number of elements the last one
+def raised_theta(mesh: Mesh, state: BisectionState | None, eta: np.ndarray,
+                 first: tuple[Mesh, BisectionState, np.ndarray, float], growth: float, allowed: int):
+    """``(mesh, state, marked, θ)``: ``first``, the refinement of Dörfler's θ, with θ raised
+    until the mesh has ``growth`` times the elements (at most ``allowed``), or θ = 1, or
+    :data:`RAISE_STEPS` refinements. Each try marks the number of elements the last one
     showed to be needed: the elements a marked element added there, closure included
-    (about 7 in 3D, 3 in 2D), divided into the elements still missing."""
-    marked = dorfler_mark(eta, theta)
-    new, st, _ = refine(mesh, marked, state)
-    target = growth * mesh.n_elements
+    (about 7 in 3D), divided into the elements still missing. The result may overshoot
+    ``allowed``; :func:`next_mesh` then fits it."""
+    new, st, marked, theta = first
+    target = min(growth * mesh.n_elements, allowed)
     for _ in range(RAISE_STEPS):
         added, count = new.n_elements - mesh.n_elements, int(marked.sum())
         if new.n_elements >= target or theta >= 1.0 or added <= 0 or count == 0:
@@ -145,23 +151,39 @@ def raised_theta(mesh: Mesh, state: BisectionState | None, eta: np.ndarray, thet
 def next_mesh(mesh: Mesh, state: BisectionState | None, eta: np.ndarray, theta: float, allowed: int,
               adaptive: bool, min_growth: float = 1.0
               ) -> tuple[tuple[Mesh, BisectionState, np.ndarray, float] | None, int]:
-    """The refined mesh Dörfler's ``theta`` marks (every element when not
-    ``adaptive``), θ first raised until the mesh has at least ``min_growth`` times the
-    elements (:func:`raised_theta`), or, when it has more than ``allowed`` elements,
-    the one of the largest smaller θ that fits (the marked sets are nested in θ, hence
-    so are the meshes) if it has at least ``MIN_GROWTH`` times the elements; else None.
-    Returns ``((mesh, state, marked, θ) or None, elements of the mesh θ asks for)``."""
-    if adaptive:
-        new, st, marked, theta = raised_theta(mesh, state, eta, theta, min_growth)
-    else:
-        marked = np.ones(eta.size, dtype=bool)
-        new, st, _ = refine(mesh, marked, state)
-    wanted = new.n_elements
-    if wanted <= allowed:
-        return (new, st, marked, theta if adaptive else math.nan), wanted
+    """The refined mesh Dörfler's ``theta`` marks (every element when not ``adaptive``).
+
+    When that mesh fits (at most ``allowed`` elements) but has fewer than ``min_growth``
+    times the elements, θ is raised (:func:`raised_theta`); a raised mesh above ``allowed``
+    is brought back by bisection on θ between the two, to the largest θ that fits. When
+    the mesh of ``theta`` itself does not fit, θ is lowered by bisection to the largest
+    smaller θ that fits (the marked sets are nested in θ, hence so are the meshes), if that
+    mesh has at least ``MIN_GROWTH`` times the elements; else None.
+    Returns ``((mesh, state, marked, θ) or None, elements of the mesh asked for)``."""
+    marked = dorfler_mark(eta, theta) if adaptive else np.ones(eta.size, dtype=bool)
+    new, st, _ = refine(mesh, marked, state)
+    asked = (new, st, marked, theta if adaptive else math.nan)
+    if new.n_elements <= allowed:
+        if not adaptive:
+            return asked, new.n_elements
+        raised = raised_theta(mesh, state, eta, asked, min_growth, allowed)
+        if raised[0].n_elements <= allowed:
+            return raised, raised[0].n_elements
+        return fitted_theta(mesh, state, eta, allowed, asked, raised[3]), raised[0].n_elements
     if not adaptive:
-        return None, wanted
-    best, lo, hi = None, 0.0, theta
+        return None, new.n_elements
+    best = fitted_theta(mesh, state, eta, allowed, None, theta)
+    if best is None or best[0].n_elements < MIN_GROWTH * mesh.n_elements:
+        return None, new.n_elements
+    return best, new.n_elements
+
+
+def fitted_theta(mesh: Mesh, state: BisectionState | None, eta: np.ndarray, allowed: int,
+                 fits: tuple[Mesh, BisectionState, np.ndarray, float] | None, too_large: float):
+    """The refinement of the largest θ below ``too_large`` whose mesh has at most ``allowed``
+    elements, by :data:`FIT_STEPS` bisection steps from ``fits`` (a refinement that fits, the
+    lower end; None: from θ = 0, and None if no θ tried fits)."""
+    best, lo, hi = fits, (0.0 if fits is None else fits[3]), too_large
     for _ in range(FIT_STEPS):
         t = 0.5 * (lo + hi)
         m = dorfler_mark(eta, t)
@@ -170,6 +192,4 @@ def next_mesh(mesh: Mesh, state: BisectionState | None, eta: np.ndarray, theta: 
             best, lo = (cand[0], cand[1], m, t), t
         else:
             hi = t
-    if best is None or best[0].n_elements < MIN_GROWTH * mesh.n_elements:
-        return None, wanted
-    return best, wanted
+    return best

@@ -32,7 +32,9 @@ the time left (:func:`predicted_seconds`: the cost of the last meshes
 extrapolated as a power of the number of elements, with the final U bracket),
 θ is lowered (by bisection, marking a subset, since the marking is monotone) to
 the largest value whose mesh fits; the loop stops when no mesh with at least
-``MIN_GROWTH`` times the elements fits. The time budget rests on a prediction
+``MIN_GROWTH`` times the elements fits. A θ whose mesh would grow by less than
+``min_growth`` is first raised (:func:`~elastoplast.adapt.budget.raised_theta`): every
+mesh costs a lower bound, and small steps spend the budget on many of them. The time budget rests on a prediction
 and is overrun by its error: measured on the 3D quarter sphere (Clarabel, commit 91d17b4), 669 s for a
 600 s budget (the lower bound at F took the predicted 159 s, the two bracket
 programs 1.2 times that each on a loaded machine).
@@ -48,7 +50,10 @@ F): by default (``bracket = "final"``) it is computed on the last mesh
 only, whatever stopped the loop (the time budget reserves for it), unless what is left of
 the time limit is less than its predicted cost (:func:`~elastoplast.adapt.budget.bracket_seconds`:
 twice the last lower bound's time, plus the solves for the local bound: the
-first mesh, always bounded, can overrun a small budget). For
+first mesh, always bounded, can overrun a small budget); then its two lower bounds at
+``F ∓ δ`` are taken on the mesh before, if they fit (:func:`bracket_from`). The run's
+energy bracket is the best certified lower and upper bound over all its meshes
+(:func:`~elastoplast.adapt.records.run_bracket`); the loop stops on it too. For
 comparison, :func:`uniform` runs the same pipeline refining every element.
 
 Measured (benchmarks/adapt/REPORT.md): the lower-bound program is most of the
@@ -216,10 +221,13 @@ def bracket_from(done: _Bounded, earlier: _Earlier, options: AdaptOptions, upper
     t0 = time.perf_counter()
     disc = discretize(earlier.problem)
     b = earlier.bounds
-    b = replace(b, energy_upper=min(b.energy_upper, done.bounds.energy_upper, upper))
+    own = b.energy_upper if earlier.row.certified else math.inf  # only a certified upper bound is a bound
+    b = replace(b, energy_upper=min(own, done.bounds.energy_upper, upper))
     lo, hi, _, certified = u_bracket_of(disc, b, earlier.solution.U, _lower_options(options),
                                         solution=earlier.solution, method=options.method)
     seconds = time.perf_counter() - t0
+    if math.isnan(lo) or math.isnan(hi):  # refused there (the memory taken since): no bracket, said by the caller
+        return done
     row = replace(done.row, U_lower=lo, U_upper=hi, certified=done.row.certified and certified,
                   bracket_seconds=seconds, seconds=done.row.seconds + seconds, bracket_step=earlier.row.step)
     return replace(done, row=row)
@@ -342,6 +350,8 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
                              f"{left:.0f} s left: its lower bounds at F ∓ δ are those of step {earlier.row.step} "
                              f"({earlier.row.n_elements:,} elements)")
                     done = bracket_from(done, earlier, options, best_upper)
+                    if math.isnan(done.row.U_lower):
+                        stop += ", which could not be bounded: no U bracket"
                 else:
                     stop += (f"; no U bracket: the time limit is spent" if left <= 0 else
                              f"; no U bracket: it would take about {bracket_seconds(row):.0f} s, {left:.0f} s "
@@ -359,7 +369,8 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
         steps.append(row)
         if report is not None:
             report(row)
-        earlier = _Earlier(row=row, problem=done.disc.problem, solution=done.solution, bounds=done.bounds)
+        if final_bracket:
+            earlier = _Earlier(row=row, problem=done.disc.problem, solution=done.solution, bounds=done.bounds)
         if options.warm_start:
             start = (_prolonged(done.solution, new_state),
                      None if done.conservative is None else _prolonged(done.conservative, new_state))

@@ -125,6 +125,12 @@ class AdaptResult:
         """The energy bracket of the whole run (:func:`run_bracket`)."""
         return run_bracket(self.steps)
 
+    def reached(self, rtol: float) -> bool:
+        """Whether the last mesh's certified bounds, or the run's certified bracket, are
+        within ``rtol``."""
+        final, run = self.final, self.bracket
+        return bool((final.certified and final.gap_rel <= rtol) or (run.certified and run.gap_rel <= rtol))
+
 
 @dataclass(frozen=True)
 class RunBracket:
@@ -141,7 +147,8 @@ class RunBracket:
     def as_dict(self) -> dict[str, Any]:
         """The keys ``summary.json`` gains."""
         return {"run_energy_lower": self.lower, "run_energy_upper": self.upper, "run_gap_rel": self.gap_rel,
-                "run_lower_step": self.lower_step, "run_upper_step": self.upper_step}
+                "run_lower_step": self.lower_step, "run_upper_step": self.upper_step,
+                "run_bounds_certified": self.certified}
 
     def line(self) -> str:
         return (f"over the run: energy in [{self.lower:.8g}, {self.upper:.8g}], relative gap {self.gap_rel:.3e} "
@@ -155,7 +162,11 @@ def run_bracket(steps: tuple[Step, ...] | list[Step]) -> RunBracket:
     bracket too. The local lower bound is not monotone along a run (how far its descent gets
     varies from mesh to mesh, and ``adapt --lower auto`` moves from the global program to it),
     so the best lower bound need not be the last mesh's. Without a certified mesh: the last
-    mesh's own, not certified."""
+    mesh's own, not certified. A largest lower bound above the smallest upper bound (beyond
+    their round-off, :func:`~elastoplast.bounds.bracket.bracket_holds`) proves that one of
+    them is not a bound: not certified either."""
+    from elastoplast.bounds.bracket import bracket_holds
+
     certified = [s for s in steps if s.certified]
     if not certified:
         last = steps[-1]
@@ -164,7 +175,8 @@ def run_bracket(steps: tuple[Step, ...] | list[Step]) -> RunBracket:
     hi = min(certified, key=lambda s: s.energy_upper)
     gap = hi.energy_upper - lo.energy_lower
     rel = gap / abs(hi.energy_upper) if hi.energy_upper != 0 else math.inf
-    return RunBracket(lo.energy_lower, hi.energy_upper, float(rel), lo.step, hi.step, True)
+    return RunBracket(lo.energy_lower, hi.energy_upper, float(rel), lo.step, hi.step,
+                      bracket_holds(lo.energy_lower, hi.energy_upper))
 
 
 def fitted_rate(steps: tuple[Step, ...] | list[Step], last: int | None = None) -> float:

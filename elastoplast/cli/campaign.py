@@ -399,7 +399,7 @@ def adaptive_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
     options = AdaptOptions.build({**spec["adapt"], "method": spec["method"]})
     run = adapt(problem, options)
     final, b = run.final, run.bounds
-    reached = final.certified and min(final.gap_rel, run.bracket.gap_rel) <= options.rtol
+    reached = run.reached(options.rtol)
     status = Status.CONVERGED if reached else (Status.TIME_LIMIT if "time_limit" in run.reason else Status.MAX_ITERATIONS)
     sol = dataclasses.replace(run.solution, status=status, message=f"adapt: {run.reason}; {run.solution.message}")
     bounds = {**b.as_dict(), **run.bracket.as_dict(), "U_lower": final.U_lower, "U_upper": final.U_upper, "final_elements": final.n_elements,

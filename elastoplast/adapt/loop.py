@@ -188,22 +188,15 @@ def with_bracket(done: _Bounded, options: AdaptOptions, upper: float = math.inf)
     lower bounds, at ``F ∓ δ``, as the ``bounds`` command does: no P1 solve for the global
     program, two warm-started ones by ``options.method`` for the local bound). ``upper``: an
     upper bound of ``Pi*(F)`` from another mesh of the run, used where it is smaller."""
-    from elastoplast.bounds.bracket import u_bracket_of
-
     t0 = time.perf_counter()
-    disc, sol, b = done.disc, done.solution, done.bounds
-    b = replace(b, energy_upper=min(b.energy_upper, upper))
-    lo, hi, _, certified = u_bracket_of(disc, b, sol.U, _lower_options(options), solution=sol, method=options.method)
-    seconds = time.perf_counter() - t0
-    row = replace(done.row, U_lower=lo, U_upper=hi, certified=done.row.certified and certified,
-                  bracket_seconds=seconds, seconds=done.row.seconds + seconds)
-    return replace(done, row=row)
+    b = replace(done.bounds, energy_upper=min(done.bounds.energy_upper, upper))
+    return _bracketed(done, done.disc, done.solution, b, options, None, t0)
 
 
 @dataclass(frozen=True)
 class _Earlier:
-    """What an earlier mesh leaves for a U bracket on it (its discretisation is rebuilt when
-    needed, so that it takes no memory while the next meshes are bounded)."""
+    """What an earlier mesh leaves for a U bracket on it. Its discretisation is rebuilt when
+    needed, so that it is not held while the last mesh's own bracket is computed."""
 
     row: Step
     problem: Problem
@@ -215,21 +208,27 @@ def bracket_from(done: _Bounded, earlier: _Earlier, options: AdaptOptions, upper
     """``done`` with a U bracket whose two lower bounds at ``F ∓ δ`` are bounded on an earlier
     mesh, and whose upper bound at F is the smallest of the two meshes' and ``upper`` (each
     bounds the same ``Pi*(F)``, so the secants of :func:`~elastoplast.bounds.bracket.u_secants`
-    hold with any mix). δ is chosen for the earlier mesh's lower bound against that upper bound."""
-    from elastoplast.bounds.bracket import u_bracket_of
-
+    hold with any mix). δ is chosen for the earlier mesh's lower bound against that upper bound.
+    A bracket refused there (the memory taken since) leaves ``done`` as it was; the caller says so."""
     t0 = time.perf_counter()
-    disc = discretize(earlier.problem)
     b = earlier.bounds
     own = b.energy_upper if earlier.row.certified else math.inf  # only a certified upper bound is a bound
     b = replace(b, energy_upper=min(own, done.bounds.energy_upper, upper))
-    lo, hi, _, certified = u_bracket_of(disc, b, earlier.solution.U, _lower_options(options),
-                                        solution=earlier.solution, method=options.method)
+    bracketed = _bracketed(done, discretize(earlier.problem), earlier.solution, b, options, earlier.row.step, t0)
+    return done if math.isnan(bracketed.row.U_lower) or math.isnan(bracketed.row.U_upper) else bracketed
+
+
+def _bracketed(done: _Bounded, disc: Discretization, solution: Solution, b: Bounds, options: AdaptOptions,
+               step: int | None, t0: float) -> _Bounded:
+    """``done`` with the U bracket of the energy bracket ``b`` at F and two more lower bounds on
+    ``disc`` (``step``: the step of that mesh when it is an earlier one), timed from ``t0``."""
+    from elastoplast.bounds.bracket import u_bracket_of
+
+    lo, hi, _, certified = u_bracket_of(disc, b, solution.U, _lower_options(options), solution=solution,
+                                        method=options.method)
     seconds = time.perf_counter() - t0
-    if math.isnan(lo) or math.isnan(hi):  # refused there (the memory taken since): no bracket, said by the caller
-        return done
     row = replace(done.row, U_lower=lo, U_upper=hi, certified=done.row.certified and certified,
-                  bracket_seconds=seconds, seconds=done.row.seconds + seconds, bracket_step=earlier.row.step)
+                  bracket_seconds=seconds, seconds=done.row.seconds + seconds, bracket_step=step)
     return replace(done, row=row)
 
 

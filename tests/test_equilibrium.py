@@ -135,6 +135,28 @@ def test_certificate_refuses_perturbed_fields(cylinder_small):
     assert bad.failed == ("force_balance",)
 
 
+def test_certificate_by_blocks_is_the_certificate_at_once(cylinder_small, monkeypatch):
+    """The certificate's batched operators and the von Mises stress are computed in blocks;
+    with blocks of 7 elements (or rows) every residual is the one computed at once (the same
+    rows, maxima of maxima), and a NaN in the last block is not lost between blocks."""
+    from elastoplast.bounds import static
+    from elastoplast.fem import material
+
+    disc, lb = cylinder_small
+    whole = certify_static(disc, lb.field).as_dict()
+    monkeypatch.setattr(static, "CERTIFY_BLOCK", 7)
+    monkeypatch.setattr(material, "VON_MISES_ROWS", 7)
+    assert certify_static(disc, lb.field).as_dict() == whole
+    vm = ep.von_mises(lb.field.tau)
+    monkeypatch.setattr(material, "VON_MISES_ROWS", 1 << 20)
+    np.testing.assert_array_equal(vm, ep.von_mises(lb.field.tau))
+    monkeypatch.setattr(material, "VON_MISES_ROWS", 7)
+    tau = lb.field.tau.copy()
+    tau[-1, -1, 0] = np.nan  # the last vertex value of the last element: the last block
+    bad = certify_static(disc, replace(lb.field, tau=tau))
+    assert not bad.passed and np.isnan(bad.traction_jump) and np.isnan(bad.yield_excess)
+
+
 def test_certificate_refuses_a_dropped_traction_row_and_raw_solver_output():
     """A program missing one traction-continuity row finds a field with a traction
     jump there, which the certificate names; the raw interior point (before the

@@ -200,6 +200,25 @@ def test_repair_visits_only_the_rings_of_unbalanced_elements(monkeypatch):
     assert len(calls) < 100 and floor <= tol
 
 
+def test_repair_in_blocks_of_rings_is_the_repair_of_whole_colours(monkeypatch):
+    """The repair solves a colour's rings in blocks (edges.REPAIR_CHUNK, to bound its
+    temporaries). The rings of a colour share no facet and each ring's system is its own,
+    so blocks of 3 rings give the tractions of whole colours bit for bit, on noise over
+    every facet (every ring visited)."""
+    from elastoplast.bounds import edges
+
+    disc = _quarter()
+    mesh = disc.mesh
+    maps, faces, free, batches, t = _self_balanced_tractions(disc)
+    noisy = t + 1e-10 * np.abs(t).max() * np.random.default_rng(5).normal(size=t.shape) * free[:, None, :]
+    assert max(b.E.shape[0] for b in batches) > 3
+    whole = edges.ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 1e-14, 2)
+    monkeypatch.setattr(edges, "REPAIR_CHUNK", 3)
+    blocks = edges.ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 1e-14, 2)
+    assert whole[1] == blocks[1] and whole[2] == blocks[2] < whole[1]
+    np.testing.assert_array_equal(whole[0], blocks[0])
+
+
 @pytest.mark.parametrize("case", ["cylinder", "quarter", "default"])
 def test_compiled_ring_step_is_the_numpy_step(monkeypatch, case):
     """The sweeps' compiled step (ring_kernel.ring_newton) against the batched numpy step

@@ -24,11 +24,12 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import fields
 from functools import lru_cache
 
 import numpy as np
 
-from elastoplast.bounds.equilibrate import Faces
+from elastoplast.bounds.equilibrate import Faces, element_tractions
 from elastoplast.bounds.lift import MANDEL_PAIRS, ElementMaps, mandel_to_tensor, reference_lift, tensor_to_mandel
 from elastoplast.bounds.rings import RingBatch, face_bases, local_entities
 from elastoplast.bounds.static import mass_matrix
@@ -138,7 +139,7 @@ def sweep_context(material: Material, faces: Faces, n: int, d: int, offset=None,
 
 def subset(b: RingBatch, keep: np.ndarray) -> RingBatch:
     """The rings ``keep`` (bool) of a batch."""
-    return RingBatch(*(getattr(b, f)[keep] for f in ("ent", "E", "valid", "le", "lf", "j", "o", "F", "s", "end", "Nb")))
+    return RingBatch(*(getattr(b, f.name)[keep] for f in fields(RingBatch)))
 
 
 def ring_face_bases(b: RingBatch, points, faces: Faces, rings, d: int) -> np.ndarray:
@@ -398,17 +399,10 @@ def lifted_stresses(maps: ElementMaps, faces: Faces, t: np.ndarray, E: np.ndarra
     tractions ``t`` (their double Piola maps ``TP`` (:func:`piola`), facet scales ``scale
     (N, d+1)``: physical over reference facet measures; plus ``ctx["base"]``)."""
     N, d1 = E.size, maps.J.shape[1] + 1
-    that = np.matmul(element_traction_rows(faces, t, E), np.swapaxes(maps.Jinv[E], 1, 2)[:, None]) \
+    that = np.matmul(element_tractions(faces, t, E), np.swapaxes(maps.Jinv[E], 1, 2)[:, None]) \
         * scale[:, :, None, None]
     Sig = (that.reshape(N, -1) @ ctx["ops"][0].T).reshape(N, d1 * d1, -1)
     return np.matmul(Sig, np.swapaxes(TP, 1, 2)) + ctx["base"][E][:, None, :]
-
-
-def element_traction_rows(faces: Faces, t: np.ndarray, E: np.ndarray) -> np.ndarray:
-    """``(N, d+1, d+1, d)``: the outward vertex tractions of the elements ``E`` (zero where vertex == facet)."""
-    slot = faces.slot[E]
-    te = t[faces.face[E][:, :, None], np.where(slot >= 0, slot, 0)] * faces.sign[E][:, :, None, None]
-    return np.where((slot >= 0)[..., None], te, 0.0)
 
 
 #: the round-off repair stops once a pass leaves the largest imbalance above this share of the
@@ -434,14 +428,12 @@ def ring_repair(points, cells, maps: ElementMaps, faces: Faces, t: np.ndarray, b
     lowers it by less than :data:`STALL`; a pass visits only the rings with an element above
     ``VISIT * tol`` (a ring's correction changes the balance of its own elements only).
     Returns ``(t, before, after)``."""
-    from elastoplast.bounds.sweeps import balance_matrices, element_imbalance
+    from elastoplast.bounds.sweeps import element_imbalance
 
     t = t.copy()
     imbalance = element_imbalance(points, cells, maps, faces, t)
     before = after = float(imbalance.max(initial=0.0))
-    d = cells.shape[1] - 1
-    dd = d * d
-    _, sel, _, _, _, AV = reference_operators(d)
+    _, sel, _, _, _, AV = reference_operators(cells.shape[1] - 1)
     for _ in range(passes):
         if after <= tol:
             break
@@ -452,41 +444,67 @@ def ring_repair(points, cells, maps: ElementMaps, faces: Faces, t: np.ndarray, b
                 continue
             if not keep.all():
                 b = subset(b, keep)
-            m_r, ke = b.E.shape
-            kf = b.F.shape[1]
-            flat = b.E.ravel()
-            N = flat.size
-            C = balance_matrices(points, cells[flat], maps.facet_areas[flat])  # (N, nb, nte)
-            nb = C.shape[1]
-            te = element_traction_rows(faces, t, flat).reshape(N, -1)
-            res = -np.einsum("nrx,nx->nr", C, te) * b.valid.ravel()[:, None]
-            lf = b.lf.reshape(N, 2)
-            slot = faces.slot[flat[:, None, None], lf[:, :, None], AV[lf]]  # (N, 2, d)
-            col = (b.j.reshape(N, 2)[:, :, None] * d + slot)[..., None] * d + np.arange(d)  # (N, 2, d, d)
-            fr = free[b.F.reshape(-1)].reshape(m_r, kf, d) & (b.F >= 0)[..., None]
-            ring = np.repeat(np.arange(m_r), ke)
-            ok = fr[ring[:, None, None], b.j.reshape(N, 2)[:, :, None], np.arange(d)[None, None, :]]  # (N, 2, d comp)
-            sgn = faces.sign[flat[:, None], lf] * b.valid.ravel()[:, None]  # (N, 2)
-            Csel = np.take_along_axis(C, np.broadcast_to(sel[b.le.ravel()][:, None, :], (N, nb, sel.shape[1])), axis=2)
-            Csel = Csel.reshape(N, nb, 2, d, d) * (sgn[:, None, :, None, None] * ok[:, None, :, None, :])
-            ncol = kf * dd
-            Cs = np.zeros((m_r, ke * nb, ncol))
-            lin = (np.arange(N * nb).reshape(N, nb, 1) * ncol + col.reshape(N, 1, -1)).ravel()
-            Cs.reshape(-1)[lin] = Csel.reshape(-1)
-            rhs = res.reshape(m_r, ke * nb)
-            nrm = np.linalg.norm(Cs, axis=2)
-            live = nrm > 0
-            nrm = np.where(live, nrm, 1.0)
-            Cs, rhs = Cs / nrm[..., None], np.where(live, rhs / nrm, 0.0)
-            G = np.matmul(Cs, np.swapaxes(Cs, 1, 2)) + 1e-10 * np.eye(ke * nb)
-            x = np.zeros((m_r, ncol))
-            for _ in range(2):
-                r = rhs - np.matmul(Cs, x[..., None])[..., 0]
-                x += np.matmul(np.swapaxes(Cs, 1, 2), np.linalg.solve(G, r[..., None]))[..., 0]
-            ok_f = b.F >= 0
-            t.reshape(t.shape[0], -1)[b.F[ok_f]] += x.reshape(m_r, kf, dd)[ok_f]
+            for part in ring_slices(b, REPAIR_CHUNK):
+                repair_rings(part, points, cells, maps, faces, t, free, sel, AV)
         imbalance = element_imbalance(points, cells, maps, faces, t)
         last, after = after, float(imbalance.max(initial=0.0))
         if after > STALL * last:
             break  # at the round-off of the rings' own solves
     return t, before, after
+
+
+#: rings per block of the repair's batched solves: a colour's dense ring systems at once took
+#: 500 MB above the field on the default 3D problem at 98,304 tetrahedra (its largest colours
+#: hold some 10,000 rings of ``(ke nb) x (kf d d)`` rows and columns); blocks of this size keep the
+#: temporaries near 20 MB and the numpy calls long enough that their overhead does not show
+REPAIR_CHUNK = 512
+
+
+def ring_slices(b: RingBatch, size: int):
+    """The rings of a batch in consecutive blocks of at most ``size`` (views: an interior
+    batch's broadcast ``Nb`` stays one array)."""
+    for lo in range(0, b.E.shape[0], size):
+        yield RingBatch(*(getattr(b, f.name)[lo:lo + size] for f in fields(RingBatch)))
+
+
+def repair_rings(b: RingBatch, points, cells, maps: ElementMaps, faces: Faces, t: np.ndarray, free: np.ndarray,
+                 sel: np.ndarray, AV: np.ndarray) -> None:
+    """One step of :func:`ring_repair` on the rings of ``b`` (of one colour): the least-norm
+    correction of their faces' free components that zeroes their elements' balance rows, added into ``t``."""
+    from elastoplast.bounds.sweeps import balance_matrices
+
+    d = cells.shape[1] - 1
+    dd = d * d
+    m_r, ke = b.E.shape
+    kf = b.F.shape[1]
+    flat = b.E.ravel()
+    N = flat.size
+    C = balance_matrices(points, cells[flat], maps.facet_areas[flat])  # (N, nb, nte)
+    nb = C.shape[1]
+    te = element_tractions(faces, t, flat).reshape(N, -1)
+    res = -np.einsum("nrx,nx->nr", C, te) * b.valid.ravel()[:, None]
+    lf = b.lf.reshape(N, 2)
+    slot = faces.slot[flat[:, None, None], lf[:, :, None], AV[lf]]  # (N, 2, d)
+    col = (b.j.reshape(N, 2)[:, :, None] * d + slot)[..., None] * d + np.arange(d)  # (N, 2, d, d)
+    fr = free[b.F.reshape(-1)].reshape(m_r, kf, d) & (b.F >= 0)[..., None]
+    ring = np.repeat(np.arange(m_r), ke)
+    ok = fr[ring[:, None, None], b.j.reshape(N, 2)[:, :, None], np.arange(d)[None, None, :]]  # (N, 2, d comp)
+    sgn = faces.sign[flat[:, None], lf] * b.valid.ravel()[:, None]  # (N, 2)
+    Csel = np.take_along_axis(C, np.broadcast_to(sel[b.le.ravel()][:, None, :], (N, nb, sel.shape[1])), axis=2)
+    Csel = Csel.reshape(N, nb, 2, d, d) * (sgn[:, None, :, None, None] * ok[:, None, :, None, :])
+    ncol = kf * dd
+    Cs = np.zeros((m_r, ke * nb, ncol))
+    lin = (np.arange(N * nb).reshape(N, nb, 1) * ncol + col.reshape(N, 1, -1)).ravel()
+    Cs.reshape(-1)[lin] = Csel.reshape(-1)
+    rhs = res.reshape(m_r, ke * nb)
+    nrm = np.linalg.norm(Cs, axis=2)
+    live = nrm > 0
+    nrm = np.where(live, nrm, 1.0)
+    Cs, rhs = Cs / nrm[..., None], np.where(live, rhs / nrm, 0.0)
+    G = np.matmul(Cs, np.swapaxes(Cs, 1, 2)) + 1e-10 * np.eye(ke * nb)
+    x = np.zeros((m_r, ncol))
+    for _ in range(2):
+        r = rhs - np.matmul(Cs, x[..., None])[..., 0]
+        x += np.matmul(np.swapaxes(Cs, 1, 2), np.linalg.solve(G, r[..., None]))[..., 0]
+    ok_f = b.F >= 0
+    t.reshape(t.shape[0], -1)[b.F[ok_f]] += x.reshape(m_r, kf, dd)[ok_f]

@@ -216,11 +216,10 @@ def facet_tractions(faces: Faces, moments: np.ndarray) -> np.ndarray:
     return np.einsum("st,ftj->fsj", Minv, moments) / faces.measure[:, None, None]
 
 
-def element_tractions(faces: Faces, t: np.ndarray) -> np.ndarray:
-    """Outward tractions ``(n, d+1 facets, d+1 vertices, d)`` of each element (zero where
-    vertex == facet) from the facet tractions ``t (F, d, d)``."""
-    n, d1 = faces.face.shape
-    slot = np.where(faces.slot >= 0, faces.slot, 0)
-    out = t[faces.face[:, :, None], slot] * faces.sign[:, :, None, None]
-    out[faces.slot < 0] = 0.0
+def element_tractions(faces: Faces, t: np.ndarray, elements=slice(None)) -> np.ndarray:
+    """Outward tractions ``(n, d+1 facets, d+1 vertices, d)`` of each element (or of
+    ``elements``: indices or a slice; zero where vertex == facet) from the facet tractions ``t (F, d, d)``."""
+    slot = faces.slot[elements]
+    out = t[faces.face[elements][:, :, None], np.where(slot >= 0, slot, 0)] * faces.sign[elements][:, :, None, None]
+    out[slot < 0] = 0.0
     return out

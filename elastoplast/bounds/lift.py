@@ -229,7 +229,7 @@ def _reference_lift(maps: ElementMaps, sl: slice, traction: np.ndarray, Lm: np.n
     return np.einsum("nij,nsajk,nlk->nsail", J, S, J) / maps.det[sl, None, None, None, None]
 
 
-def lift(maps: ElementMaps, traction: np.ndarray, chunk: int = 1 << 14) -> np.ndarray:
+def lift(maps: ElementMaps, traction: np.ndarray, chunk: int = 1 << 12) -> np.ndarray:
     """Vertex values ``(n, d+1 sub-elements, d+1 vertices, d, d)`` of the stress tensor
     that carries the physical vertex tractions ``traction (n, d+1 facets, d+1 vertices,
     d)`` (outward, per unit area; entries with vertex == facet ignored), exactly when

@@ -125,6 +125,8 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     known[cf, :, d - 1] = (faces.measure[cf, None] * (lam @ mass_matrix(d - 1)))
     sol = star_moments(mesh.cells, faces, Q, target, known)
     t = facet_tractions(faces, sol.moments)
+    star_residual = sol.residual
+    del sol, Q, target, known, S, normals  # the size of a few fields each: not needed from here on
     timings["equilibrate"] = time.perf_counter() - t1
     repair = (0.0, 0.0, False)
     report = progress if progress is not None else (lambda fraction, what: None)
@@ -183,18 +185,23 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
         lam = t[cf, :, d - 1].copy()
         timings["repair"] = time.perf_counter() - t1
         report(0.9, "repaired")
+        del rings, batches, ctx  # the sweeps' structures: not needed for the lift, and as large as the field
     te = element_tractions(faces, t)
+    contact_nodes = faces.nodes[cf]
+    del t, faces  # freed before the lift and the split mesh's topology make their own temporaries
     t1 = time.perf_counter()
     sig = lift(maps, te)  # (n, d+1, d+1, d, d)
+    del te, maps
     timings["lift"] = time.perf_counter() - t1
     split = split_discretization(disc)
     offset = np.repeat(out_of_plane_offset(disc, sigma), d + 1)[:, None]
     tau = full_mandel(disc, sig.reshape(-1, d + 1, d, d), offset)
+    del sig
     if d == 2:
         tau = optimal_tau33(disc, tau)
-    field = admissible_field(split.disc, tau, lam, faces.nodes[cf])
+    field = admissible_field(split.disc, tau, lam, contact_nodes)
     timings["total"] = time.perf_counter() - t0
-    return LocalField(split, field, sol.residual, timings, tuple(repair))
+    return LocalField(split, field, star_residual, timings, tuple(repair))
 
 
 def element_energies(disc: Discretization, tau: np.ndarray) -> np.ndarray:

@@ -17,6 +17,8 @@ from elastoplast.bounds.lift import ElementMaps
 from elastoplast.bounds.lift import balance_matrices as vertex_balance_matrices
 from elastoplast.fem.material import Material, von_mises
 
+#: elements per block of :func:`element_imbalance`
+IMBALANCE_BLOCK = 1 << 14
 #: passes of the round-off repair at most (each visits every colour)
 REPAIR_PASSES = 4
 #: the element imbalance (relative to ``|C_e| max|t|``) below which the repair stops: round-off
@@ -57,7 +59,11 @@ def element_energy(sig: np.ndarray, w: np.ndarray, MA: np.ndarray, M: np.ndarray
 def element_imbalance(points, cells, maps: ElementMaps, faces: Faces, t: np.ndarray) -> np.ndarray:
     """``(n,)``: each element's largest balance-row residual of the tractions ``t``,
     relative to that row's norm times ``max |t|``."""
-    C = balance_matrices(points, cells, maps.facet_areas)
-    te = element_tractions(faces, t).reshape(cells.shape[0], -1)
-    r = np.abs(np.einsum("nrx,nx->nr", C, te)) / np.maximum(np.linalg.norm(C, axis=2), 1e-300)
-    return r.max(axis=1) / max(np.abs(t).max(initial=0.0), np.finfo(float).tiny)
+    n = cells.shape[0]
+    out = np.empty(n)
+    for lo in range(0, n, IMBALANCE_BLOCK):  # by blocks: the rows of a whole mesh are 6 times its tractions
+        sl = slice(lo, min(n, lo + IMBALANCE_BLOCK))
+        C = balance_matrices(points, cells[sl], maps.facet_areas[sl])
+        te = element_tractions(faces, t, sl).reshape(C.shape[0], -1)
+        out[sl] = (np.abs(np.einsum("nrx,nx->nr", C, te)) / np.maximum(np.linalg.norm(C, axis=2), 1e-300)).max(axis=1)
+    return out / max(np.abs(t).max(initial=0.0), np.finfo(float).tiny)

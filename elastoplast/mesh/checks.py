@@ -74,8 +74,6 @@ def check_conforming(points: np.ndarray, cells: np.ndarray, field: str) -> tuple
     parts, or parts touching only at a vertex or an edge, fail (3).
     """
     n_nodes = points.shape[0]
-    d = points.shape[1]
-    n_el = cells.shape[0]
     sorted_cells = np.sort(cells, axis=1)
     collapsed = np.any(sorted_cells[:, 1:] == sorted_cells[:, :-1], axis=1)
     if np.any(collapsed):

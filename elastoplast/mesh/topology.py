@@ -207,8 +207,10 @@ def facet_topology(mesh, boundary) -> FacetTopology:
     group_faces = [np.sort(np.asarray(mesh.groups[name], dtype=np.int64).reshape(-1, d), axis=1) for _, name in named]
     rows = np.concatenate([faces] + group_faces)
     uniq, inv, _ = unique_rows(rows, max(mesh.n_nodes, int(rows.max(initial=-1)) + 1))
+    n_unique = uniq.shape[0]
+    del rows, uniq  # as large as the facets, and only their number is needed (a split mesh has millions)
     fid = inv[: faces.shape[0]]
-    counts = np.bincount(fid, minlength=uniq.shape[0])
+    counts = np.bincount(fid, minlength=n_unique)
     if np.any(counts > 2):
         raise InputError("mesh", f"{int(np.sum(counts > 2))} facet(s) shared by more than two elements (non-manifold mesh)")
 
@@ -226,9 +228,9 @@ def facet_topology(mesh, boundary) -> FacetTopology:
     b_nodes = faces[one]
     b_elem, b_loc = elem[one], loc[one]
     b_vert = local_vertex_indices(cells, b_elem, b_nodes)
-    position = -np.ones(uniq.shape[0], dtype=np.int64)
+    position = -np.ones(n_unique, dtype=np.int64)
     position[fid[one]] = np.arange(one.size)
-    interior = np.zeros(uniq.shape[0], dtype=bool)
+    interior = np.zeros(n_unique, dtype=bool)
     interior[fid[first]] = True
 
     fixed = np.zeros((one.size, d), dtype=bool)

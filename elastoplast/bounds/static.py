@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from elastoplast.errors import InputError
-from elastoplast.fem.assembly import STRAIN_ROWS, element_geometry
+from elastoplast.fem.assembly import STRAIN_ROWS, simplex_geometry
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import n_components, von_mises
 from elastoplast.mesh.topology import FacetTopology, facet_measure, outward_facet_normals
@@ -260,11 +260,12 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
 
     # equilibrium: div of the linear field from the barycentric gradients (by blocks of
     # elements: the operators of a whole split mesh at once are three times the field's size)
-    _, grads = element_geometry(mesh)
     div = np.empty((tau.shape[0], disc.dim))
+    h = np.empty(tau.shape[0])
     for sl in blocks(tau.shape[0]):
-        div[sl] = np.einsum("eadk,eak->ed", traction_operator(grads[sl]), tau[sl])
-    h = 1.0 / np.linalg.norm(grads, axis=2).max(axis=1)
+        _, grads = simplex_geometry(mesh.points, mesh.cells[sl])
+        div[sl] = np.einsum("eadk,eak->ed", traction_operator(grads), tau[sl])
+        h[sl] = 1.0 / np.linalg.norm(grads, axis=2).max(axis=1)
 
     contact_measure = facet_measure(mesh.points[topo.contact_facets])
     # Mandel vectors are orthonormal coordinates: their norm is the tensor's Frobenius norm

@@ -57,17 +57,23 @@ CHUNK = 1 << 14
 
 def element_geometry(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
     """``(volumes, gradients)``; refuses degenerate and inverted simplices."""
-    d = mesh.dim
-    X = mesh.points[mesh.cells]
-    J = element_jacobians(mesh.points, mesh.cells)
+    return simplex_geometry(mesh.points, mesh.cells)
+
+
+def simplex_geometry(points: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`element_geometry` of the simplices ``cells`` (node indices into ``points``)."""
+    d = points.shape[1]
+    n_elements = cells.shape[0]
+    X = points[cells]
+    J = element_jacobians(points, cells)
     det = np.linalg.det(J)
     edges = np.concatenate([X[:, i] - X[:, j] for i in range(d + 1) for j in range(i)], axis=0)
-    h = np.linalg.norm(edges.reshape(-1, mesh.n_elements, d), axis=2).max(axis=0)
+    h = np.linalg.norm(edges.reshape(-1, n_elements, d), axis=2).max(axis=0)
     degenerate = np.abs(det) <= 1e-10 * h**d
     if np.any(degenerate):
         bad = np.flatnonzero(degenerate)
         raise InputError(
-            "mesh", f"{bad.size} degenerate element(s) (zero volume), first: element {bad[0]} with nodes {mesh.cells[bad[0]].tolist()}"
+            "mesh", f"{bad.size} degenerate element(s) (zero volume), first: element {bad[0]} with nodes {cells[bad[0]].tolist()}"
         )
     sign = np.sign(det)
     majority = 1.0 if np.sum(sign > 0) >= np.sum(sign < 0) else -1.0

@@ -253,3 +253,22 @@ def test_compiled_ring_step_is_the_numpy_step(monkeypatch, case):
     assert seen["t"] < 1e-10 and seen["gain"] < 1e-8, seen
     if case == "default":  # the plastic branch ran
         assert (von_mises(np.asarray(sol.sigma)) > disc.material.yield_stress * (1 - 1e-9)).any()
+
+
+@pytest.mark.parametrize("m, least, per_thread", [(0, 8, 4), (7, 8, 4), (16, 8, 4), (101, 8, 4), (1000, 64, 1), (5, 1, 3)])
+def test_slices_cover_every_ring_once(m, least, per_thread):
+    """edges.in_slices hands the rings of a colour to the kernel threads in slices (several per
+    thread, so that a free thread takes the next): every ring exactly once, and one call
+    where there is room for one slice only."""
+    from elastoplast.bounds.edges import KERNEL_THREADS, in_slices
+
+    seen, calls = np.zeros(m, dtype=int), []
+
+    def kernel(lo, hi, out):
+        calls.append((lo, hi))
+        out[lo:hi] += 1
+
+    in_slices(kernel, m, [seen], least=least, per_thread=per_thread)
+    np.testing.assert_array_equal(seen, np.ones(m, dtype=int))
+    assert len(calls) == max(1, min(KERNEL_THREADS * per_thread, m // least))
+    assert all(hi - lo >= min(least, m) for lo, hi in calls)

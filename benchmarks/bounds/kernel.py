@@ -53,11 +53,11 @@ def record_sweep(disc, sol) -> tuple[list, np.ndarray, int]:
     it = ring_newton.py_func.__code__.co_varnames.index("t") - 2
     original = edges.in_slices
 
-    def recording(kernel, m, args, least=64):
+    def recording(kernel, m, args, **slicing):
         if kernel is ring_newton:
             first.setdefault("t", args[it].copy())
             calls.append((m, list(args)))
-        return original(kernel, m, args, least)
+        return original(kernel, m, args, **slicing)
 
     edges.in_slices = recording
     try:
@@ -80,7 +80,7 @@ def replay(calls, t0: np.ndarray, it: int, threads: bool) -> float:
         args[-1] = np.zeros(m)
         start = time.perf_counter()
         if threads:
-            edges.in_slices(ring_newton, m, args)
+            edges.in_slices(ring_newton, m, args, least=edges.RING_SLICE, per_thread=edges.RING_SLICES_PER_THREAD)
         else:
             ring_newton(0, m, *args)
         total += time.perf_counter() - start

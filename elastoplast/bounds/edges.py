@@ -50,6 +50,11 @@ LAM_MARGIN = 1e-9
 #: the larger share stops the star sweeps early and leaves the work to the slower descent
 #: (cylinder, 25,600 triangles, 64 sweeps then the descent: 0.05 17 s, 1.03; 1.0 34 s, 1.06)
 ACTIVE_SHARE = {2: 0.05, 3: 1.0}
+#: rings per slice of the compiled ring step at least, and slices per thread at most
+#: (:func:`in_slices`): after the first sweep a colour holds few active rings (at 12,288
+#: tetrahedra 38 a call on average), and rings in plastic zones cost more than the others
+RING_SLICE = 8
+RING_SLICES_PER_THREAD = 4
 #: threads of the compiled ring step (:func:`compiled_ring_step`): the rings of one colour are cut in this many slices
 KERNEL_THREADS = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
@@ -325,19 +330,27 @@ def compiled_ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, ri
             np.array(STEPS), RIDGE, LAM_MARGIN, gain]
     # one compiled signature: every array C-contiguous and writable (a read-only view is copied; t is written in place)
     args = [np.require(a, requirements=("C", "W")) if isinstance(a, np.ndarray) and a is not t else a for a in args]
-    in_slices(ring_newton, b.E.shape[0], args)
+    in_slices(ring_newton, b.E.shape[0], args, least=RING_SLICE, per_thread=RING_SLICES_PER_THREAD)
     return gain
 
 
-def in_slices(kernel, m: int, args: list, least: int = 64) -> None:
-    """``kernel(lo, hi, *args)`` over ``range(m)`` cut in :data:`KERNEL_THREADS` slices run in threads
-    (the kernels release the GIL and their slices write apart), or in one call below ``least`` per slice."""
-    cuts = np.linspace(0, m, min(KERNEL_THREADS, max(1, m // least)) + 1).astype(int)
+def in_slices(kernel, m: int, args: list, least: int = 64, per_thread: int = 1) -> None:
+    """``kernel(lo, hi, *args)`` over ``range(m)`` cut in ``per_thread`` slices per thread of
+    :data:`KERNEL_THREADS`, of at least ``least`` each, run in :func:`kernel_pool` (the kernels
+    release the GIL and their slices write apart; a free thread takes the next slice, which
+    evens out slices of unequal cost), or in one call where there is room for one slice only."""
+    cuts = np.linspace(0, m, min(KERNEL_THREADS * per_thread, max(1, m // least)) + 1).astype(int)
     if cuts.size == 2:
         kernel(0, m, *args)
         return
-    with ThreadPoolExecutor(cuts.size - 1) as pool:
-        list(pool.map(lambda lo_hi: kernel(lo_hi[0], lo_hi[1], *args), zip(cuts[:-1], cuts[1:])))
+    list(kernel_pool().map(lambda lo_hi: kernel(lo_hi[0], lo_hi[1], *args), zip(cuts[:-1], cuts[1:])))
+
+
+@lru_cache(maxsize=1)
+def kernel_pool() -> ThreadPoolExecutor:
+    """The threads of :func:`in_slices`, started once (a pool per call cost a thread start per
+    slice, as much as a few rings' step)."""
+    return ThreadPoolExecutor(KERNEL_THREADS, thread_name_prefix="elastoplast-kernel")
 
 
 @lru_cache(maxsize=None)

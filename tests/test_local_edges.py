@@ -272,3 +272,27 @@ def test_slices_cover_every_ring_once(m, least, per_thread):
     np.testing.assert_array_equal(seen, np.ones(m, dtype=int))
     assert len(calls) == max(1, min(KERNEL_THREADS * per_thread, m // least))
     assert all(hi - lo >= min(least, m) for lo, hi in calls)
+
+
+def test_slices_run_in_a_child_forked_after_the_pool_ran():
+    """The kernel threads' pool is started once per process: a child forked after the parent's
+    pool ran (as multiprocessing's fork does) gets a pool of its own and finishes, instead of
+    waiting on threads that were not copied."""
+    import multiprocessing as mp
+
+    from elastoplast.bounds.edges import in_slices
+
+    def kernel(lo, hi, out):
+        out[lo:hi] += 1
+
+    seen = np.zeros(64, dtype=int)
+    in_slices(kernel, 64, [seen], least=8, per_thread=4)  # the parent's pool runs
+    assert (seen == 1).all()
+    ctx = mp.get_context("fork")
+    child = ctx.Process(target=in_slices, args=(kernel, 64, [seen]), kwargs=dict(least=8, per_thread=4))
+    child.start()
+    child.join(timeout=60)
+    alive = child.is_alive()
+    if alive:
+        child.kill()
+    assert not alive and child.exitcode == 0

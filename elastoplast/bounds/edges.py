@@ -346,11 +346,17 @@ def in_slices(kernel, m: int, args: list, least: int = 64, per_thread: int = 1) 
     list(kernel_pool().map(lambda lo_hi: kernel(lo_hi[0], lo_hi[1], *args), zip(cuts[:-1], cuts[1:])))
 
 
-@lru_cache(maxsize=1)
 def kernel_pool() -> ThreadPoolExecutor:
-    """The threads of :func:`in_slices`, started once (a pool per call cost a thread start per
-    slice, as much as a few rings' step)."""
-    return ThreadPoolExecutor(KERNEL_THREADS, thread_name_prefix="elastoplast-kernel")
+    """The threads of :func:`in_slices`, started once per process (a pool per call cost a
+    thread start per slice, as much as a few rings' step). Per process: a child forked after
+    the pool ran inherits the pool but not its threads, and would wait on it forever."""
+    return process_pool(os.getpid())
+
+
+@lru_cache(maxsize=None)
+def process_pool(pid: int) -> ThreadPoolExecutor:
+    """:func:`kernel_pool` of the process ``pid``."""
+    return ThreadPoolExecutor(KERNEL_THREADS, thread_name_prefix=f"elastoplast-kernel-{pid}")
 
 
 @lru_cache(maxsize=None)

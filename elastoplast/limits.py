@@ -25,6 +25,12 @@ MESH_READ_DEFAULT_FACTOR = 16
 MAX_ELEMENTS = 2**40
 
 
+def blocks(n: int, size: int):
+    """Consecutive slices of at most ``size`` that cover ``range(n)``: the blocks in which an
+    operation over ``n`` rows bounds its temporaries."""
+    return (slice(lo, min(n, lo + size)) for lo in range(0, n, size))
+
+
 def shown(path: Path) -> str:
     """A path for a one-line message (very long ones cut in the middle)."""
     return elide(str(path), 200)

@@ -313,7 +313,7 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
         stop = None
         elapsed = time.perf_counter() - t_start
         run = run_bracket(steps + [row])
-        if run.certified and run.gap_rel < row.gap_rel and run.gap_rel <= options.rtol:
+        if run.tighter_than(row.gap_rel) and run.gap_rel <= options.rtol:
             stop = f"relative gap {run.gap_rel:.3e} <= rtol {options.rtol:g} ({run.line()})"
         elif row.gap_rel <= options.rtol:
             stop = f"relative gap {row.gap_rel:.3e} <= rtol {options.rtol:g}"

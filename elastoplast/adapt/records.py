@@ -150,6 +150,11 @@ class RunBracket:
                 "run_lower_step": self.lower_step, "run_upper_step": self.upper_step,
                 "run_bounds_certified": self.certified}
 
+    def tighter_than(self, gap_rel: float) -> bool:
+        """Whether the run's bracket is certified and tighter than a mesh's own ``gap_rel``
+        (then an earlier mesh's bound is the better one, and the run's bracket is worth saying)."""
+        return self.certified and self.gap_rel < gap_rel
+
     def line(self) -> str:
         return (f"over the run: energy in [{self.lower:.8g}, {self.upper:.8g}], relative gap {self.gap_rel:.3e} "
                 f"(lower bound of step {self.lower_step}, upper bound of step {self.upper_step})")

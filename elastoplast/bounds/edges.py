@@ -35,6 +35,7 @@ from elastoplast.bounds.rings import RingBatch, face_bases, local_entities
 from elastoplast.bounds.static import mass_matrix
 from elastoplast.bounds.sweeps import element_energy, stress_map
 from elastoplast.fem.material import Material, deviator_matrix, von_mises
+from elastoplast.limits import blocks
 
 #: step lengths tried per ring (the first that lowers J_ring is kept)
 STEPS = (1.0, 0.5, 0.25)
@@ -142,8 +143,8 @@ def sweep_context(material: Material, faces: Faces, n: int, d: int, offset=None,
     return ctx
 
 
-def subset(b: RingBatch, keep: np.ndarray) -> RingBatch:
-    """The rings ``keep`` (bool) of a batch."""
+def subset(b: RingBatch, keep) -> RingBatch:
+    """The rings ``keep`` (bool, or a slice: then views) of a batch."""
     return RingBatch(*(getattr(b, f.name)[keep] for f in fields(RingBatch)))
 
 
@@ -482,8 +483,7 @@ REPAIR_CHUNK = 512
 def ring_slices(b: RingBatch, size: int):
     """The rings of a batch in consecutive blocks of at most ``size`` (views: an interior
     batch's broadcast ``Nb`` stays one array)."""
-    for lo in range(0, b.E.shape[0], size):
-        yield RingBatch(*(getattr(b, f.name)[lo:lo + size] for f in fields(RingBatch)))
+    return (subset(b, sl) for sl in blocks(b.E.shape[0], size))
 
 
 def repair_rings(b: RingBatch, points, cells, maps: ElementMaps, faces: Faces, t: np.ndarray, free: np.ndarray,

@@ -17,6 +17,7 @@ from elastoplast.errors import InputError
 from elastoplast.fem.assembly import STRAIN_ROWS, simplex_geometry
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import n_components, von_mises
+from elastoplast.limits import blocks
 from elastoplast.mesh.topology import FacetTopology, facet_measure, outward_facet_normals
 from elastoplast.errors import expect
 
@@ -223,11 +224,6 @@ RESIDUALS = ("equilibrium", "traction_jump", "free_traction", "symmetry_traction
 CERTIFY_BLOCK = 1 << 15
 
 
-def blocks(n: int, size: int = CERTIFY_BLOCK):
-    """Consecutive slices of at most ``size`` that cover ``range(n)``."""
-    return (slice(lo, min(n, lo + size)) for lo in range(0, n, size))
-
-
 def _vmax(a: np.ndarray) -> float:
     return float(np.max(a, initial=0.0))
 
@@ -262,7 +258,7 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
     # elements: the operators of a whole split mesh at once are three times the field's size)
     div = np.empty((tau.shape[0], disc.dim))
     h = np.empty(tau.shape[0])
-    for sl in blocks(tau.shape[0]):
+    for sl in blocks(tau.shape[0], CERTIFY_BLOCK):
         _, grads = simplex_geometry(mesh.points, mesh.cells[sl])
         div[sl] = np.einsum("eadk,eak->ed", traction_operator(grads), tau[sl])
         h[sl] = 1.0 / np.linalg.norm(grads, axis=2).max(axis=1)
@@ -279,7 +275,7 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
     ie, iv, inodes = topo.interior_elements, topo.interior_vertices, topo.interior_nodes
     jump = _vmax(np.array([_vmax(np.linalg.norm(traction(ie[sl, 0], iv[sl, 0], inodes[sl])
                                                 + traction(ie[sl, 1], iv[sl, 1], inodes[sl]), axis=2))
-                           for sl in blocks(ie.shape[0])]))  # an array, so that a NaN block propagates
+                           for sl in blocks(ie.shape[0], CERTIFY_BLOCK)]))  # an array, so that a NaN block propagates
     tb = np.abs(traction(topo.boundary_elements, topo.boundary_vertices, topo.boundary_nodes))  # (n_bf, d vertices, d)
     zero = topo.zero_traction[:, None, :]
     free = ~topo.fixed.any(axis=1) & ~topo.contact

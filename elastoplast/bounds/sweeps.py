@@ -16,6 +16,7 @@ from elastoplast.bounds.equilibrate import Faces, element_tractions
 from elastoplast.bounds.lift import ElementMaps
 from elastoplast.bounds.lift import balance_matrices as vertex_balance_matrices
 from elastoplast.fem.material import Material, von_mises
+from elastoplast.limits import blocks
 
 #: elements per block of :func:`element_imbalance`
 IMBALANCE_BLOCK = 1 << 14
@@ -59,10 +60,8 @@ def element_energy(sig: np.ndarray, w: np.ndarray, MA: np.ndarray, M: np.ndarray
 def element_imbalance(points, cells, maps: ElementMaps, faces: Faces, t: np.ndarray) -> np.ndarray:
     """``(n,)``: each element's largest balance-row residual of the tractions ``t``,
     relative to that row's norm times ``max |t|``."""
-    n = cells.shape[0]
-    out = np.empty(n)
-    for lo in range(0, n, IMBALANCE_BLOCK):  # by blocks: the rows of a whole mesh are 6 times its tractions
-        sl = slice(lo, min(n, lo + IMBALANCE_BLOCK))
+    out = np.empty(cells.shape[0])
+    for sl in blocks(cells.shape[0], IMBALANCE_BLOCK):  # the rows of a whole mesh are 6 times its tractions
         C = balance_matrices(points, cells[sl], maps.facet_areas[sl])
         te = element_tractions(faces, t, sl).reshape(C.shape[0], -1)
         out[sl] = (np.abs(np.einsum("nrx,nx->nr", C, te)) / np.maximum(np.linalg.norm(C, axis=2), 1e-300)).max(axis=1)

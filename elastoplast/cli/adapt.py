@@ -24,7 +24,7 @@ def write_table(path, adaptive: AdaptResult, uniform_run: AdaptResult | None) ->
                          f"{s.gap_rel:.3e} | {s.U_lower:.6g} | {s.U_upper:.6g} | {s.seconds:.1f} | "
                          f"{'yes' if s.certified else 'no'} | {s.lower} |")
     run_b = adaptive.bracket
-    if run_b.certified and run_b.gap_rel < adaptive.final.gap_rel:  # an earlier mesh's bound is the better one
+    if run_b.tighter_than(adaptive.final.gap_rel):
         lines += ["", f"Bracket {run_b.line()}."]
     lines += ["", f"Stopped: {adaptive.reason}.", "",
               f"Fitted rate of the relative gap in the number of elements (gap ~ N^-p): adaptive p = "
@@ -103,6 +103,6 @@ def run_adapt_command(problem: Problem, options: AdaptOptions, out_dir) -> bool:
           + ("" if math.isnan(final.U_lower) else f", U in [{final.U_lower:.6g}, {final.U_upper:.6g}]")
           + f" ({final.lower} lower bound) -> {out_dir}")
     run_b = run.bracket
-    if run_b.certified and run_b.gap_rel < final.gap_rel:
+    if run_b.tighter_than(final.gap_rel):
         print(f"  {run_b.line()}")
     return run.reached(options.rtol)

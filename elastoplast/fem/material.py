@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from elastoplast.limits import blocks
+
 SQRT_3_2 = np.sqrt(1.5)
 
 
@@ -58,8 +60,8 @@ def von_mises(sigma: np.ndarray) -> np.ndarray:
         return SQRT_3_2 * np.linalg.norm(deviator(sigma), axis=-1)
     flat = sigma.reshape(-1, sigma.shape[-1])
     out = np.empty(flat.shape[0])
-    for lo in range(0, flat.shape[0], VON_MISES_ROWS):
-        out[lo:lo + VON_MISES_ROWS] = SQRT_3_2 * np.linalg.norm(deviator(flat[lo:lo + VON_MISES_ROWS]), axis=-1)
+    for sl in blocks(flat.shape[0], VON_MISES_ROWS):
+        out[sl] = SQRT_3_2 * np.linalg.norm(deviator(flat[sl]), axis=-1)
     return out.reshape(sigma.shape[:-1])
 
 

@@ -5,11 +5,13 @@ message; nothing here allocates before the memory checks have passed."""
 
 from __future__ import annotations
 
+import ctypes
 import math
 import os
 import re
 import resource
 import stat
+from functools import lru_cache
 from pathlib import Path
 from typing import Sequence
 
@@ -29,6 +31,29 @@ def blocks(n: int, size: int):
     """Consecutive slices of at most ``size`` that cover ``range(n)``: the blocks in which an
     operation over ``n`` rows bounds its temporaries."""
     return (slice(lo, min(n, lo + size)) for lo in range(0, n, size))
+
+
+def release_freed_memory() -> None:
+    """Hand the free pages of the C heap back to the system (glibc's ``malloc_trim``; nothing
+    where there is no glibc).
+
+    After numpy has freed a few large temporaries, glibc raises its threshold for serving large
+    blocks from their own mappings, and the next ones come from the heap. Freed there, their pages
+    stay resident. A computation in phases then has a resident peak well above what it uses at
+    any time: 100 to 200 MB at 98,304 tetrahedra for the local lower bound, which calls this
+    between its phases (Dask's workers trim their heap the same way)."""
+    trim = malloc_trim()
+    if trim is not None:
+        trim(0)
+
+
+@lru_cache(maxsize=1)
+def malloc_trim():
+    """glibc's ``malloc_trim``, or None."""
+    try:
+        return ctypes.CDLL("libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        return None
 
 
 def shown(path: Path) -> str:

@@ -37,6 +37,7 @@ from elastoplast.bounds.repair import repair_static
 from elastoplast.mesh.topology import facet_measure, facet_topology, outward_facet_normals
 from elastoplast.fem.assembly import element_geometry
 from elastoplast.mesh.topology import boundary_facets
+from elastoplast.bounds.local import split_discretization
 
 
 def patch_force(dim: int, stress_ratio: float, m: ep.Material) -> float:
@@ -111,6 +112,40 @@ def test_facet_topology_counts(cylinder_small):
     assert topo.zero_traction[free].all()
 
 
+def brute_force_facets(cells):
+    """Each facet (sorted node tuple) with the (element, opposite local vertex) pairs that hold it,
+    by a Python dictionary: the reference of the vectorised facet topology."""
+    held = {}
+    for e, cell in enumerate(cells.tolist()):
+        for j in range(len(cell)):
+            held.setdefault(tuple(sorted(cell[:j] + cell[j + 1:])), []).append((e, j))
+    return held
+
+
+@pytest.mark.parametrize("make", [lambda: build(cylinder_dict(divisions=(6, 4))),
+                                  lambda: build(sphere_quarter_dict(divisions=(3, 3, 2))),
+                                  lambda: split_discretization(build(sphere_quarter_dict(divisions=(3, 3, 2)))).disc],
+                         ids=["2d", "3d", "3d split"])
+def test_facet_topology_is_the_brute_force_pairing(make):
+    disc = make()
+    cells = disc.mesh.cells
+    topo = facet_topology(disc.mesh, disc.problem.boundary)
+    held = brute_force_facets(cells)
+    interior = {f: sorted(v) for f, v in held.items() if len(v) == 2}
+    got = {tuple(n): sorted(zip(e.tolist(), j.tolist()))
+           for n, e, j in zip(topo.interior_nodes.tolist(), topo.interior_elements, topo.interior_local)}
+    assert got == interior
+    boundary = {f: v for f, v in held.items() if len(v) == 1}
+    got_b = {tuple(n): [(int(e), int(j))] for n, e, j in zip(topo.boundary_nodes.tolist(), topo.boundary_elements,
+                                                           topo.boundary_local)}
+    assert got_b == boundary
+    # the local vertex indices name the facet's nodes in each element, and the opposite vertex is not on it
+    for s in range(2):
+        np.testing.assert_array_equal(cells[topo.interior_elements[:, s, None], topo.interior_vertices[:, s]],
+                                      topo.interior_nodes)
+    np.testing.assert_array_equal(cells[topo.boundary_elements[:, None], topo.boundary_vertices], topo.boundary_nodes)
+
+
 def test_certificate_refuses_perturbed_fields(cylinder_small):
     disc, lb = cylinder_small
     assert lb.certified, lb.message
@@ -182,7 +217,7 @@ def test_certificate_refuses_a_dropped_traction_row_and_raw_solver_output():
     cones = [type(prog.cones[0])(prog.n_eq - 1)] + prog.cones[1:]
     dropped = replace(prog, A=prog.A[keep].tocsc(), b=prog.b[keep], cones=cones, n_eq=prog.n_eq - 1)
     ans = solve_program(disc, dropped, opt, "clarabel")
-    x2, obj2 = ans.x, ans.objective
+    x2 = ans.x
     field2, resid, _ = repaired_field(disc, s, dropped, x2)
     assert resid < 1e-14
     bad = certify_static(disc, field2)

@@ -379,13 +379,22 @@ def packed_hessian_operator(d: int):
             np.ascontiguousarray(np.swapaxes(Lsel, 1, 2)))
 
 
+#: elements per block of the Piola maps of :func:`element_context`
+PIOLA_BLOCK = 1 << 14
+
+
 def element_context(maps: ElementMaps, faces: Faces, ctx: dict) -> None:
     """Keep in ``ctx`` what J's evaluation needs per element of the mesh: ``TP`` the double Piola
     maps (:func:`piola`), ``scale`` the physical over reference facet measures, ``sign`` the
     facets' orientations as floats (what the compiled loops read)."""
     if "TP" not in ctx:
-        d = maps.J.shape[1]
-        ctx["TP"] = piola(maps, np.arange(maps.J.shape[0]), ctx["T"])
+        d, n = maps.J.shape[1], maps.J.shape[0]
+        TP = None
+        for sl in blocks(n, PIOLA_BLOCK):  # piola's products for the whole mesh are 3 times TP
+            part = piola(maps, np.arange(sl.start, sl.stop), ctx["T"])
+            TP = np.empty((n,) + part.shape[1:]) if TP is None else TP
+            TP[sl] = part
+        ctx["TP"] = TP
         ctx["scale"] = maps.facet_areas / reference_lift(d).areas
         ctx["sign"] = faces.sign.astype(float)
 

@@ -39,6 +39,7 @@ from elastoplast.bounds.static import (CERTIFY_TOL, LocalTerms, StaticField, cer
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import von_mises
+from elastoplast.limits import release_freed_memory
 from elastoplast.mesh.topology import locate_rows
 
 
@@ -127,6 +128,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     t = facet_tractions(faces, sol.moments)
     star_residual = sol.residual
     del sol, Q, target, known, S, normals  # the size of a few fields each: not needed from here on
+    release_freed_memory()  # and their pages: each phase below peaks on its own temporaries (limits)
     timings["equilibrate"] = time.perf_counter() - t1
     repair = (0.0, 0.0, False)
     report = progress if progress is not None else (lambda fraction, what: None)
@@ -160,6 +162,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
 
         on_contact = np.zeros(faces.nodes.shape[0], dtype=bool)
         on_contact[cf] = True
+        release_freed_memory()  # the rings' set-up temporaries
         ctx = sweep_context(m, faces, disc.n_elements, d, offset, psi_face, on_contact)  # the sweeps' and the descent's
         t = ring_sweep(mesh.points, mesh.cells, maps, faces, rings, t, disc.volumes, ctx, batches, n_sweeps, swept)
         timings["sweeps"] = time.perf_counter() - t1
@@ -177,6 +180,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
                                                         upper)
             timings["descent"] = time.perf_counter() - t1
         t1 = time.perf_counter()
+        release_freed_memory()
         restore_load(t, faces.measure[cf], cf, disc.force)
         # the repair leaves the pressure alone (lam >= 0 stays exact): interior and prescribed-free components only
         t, before, after = ring_repair(mesh.points, mesh.cells, maps, faces, t, batches, faces.unknown, REPAIR_TOL,
@@ -189,6 +193,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     te = element_tractions(faces, t)
     contact_nodes = faces.nodes[cf]
     del t, faces  # freed before the lift and the split mesh's topology make their own temporaries
+    release_freed_memory()
     t1 = time.perf_counter()
     sig = lift(maps, te)  # (n, d+1, d+1, d, d)
     del te, maps
@@ -197,6 +202,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     offset = np.repeat(out_of_plane_offset(disc, sigma), d + 1)[:, None]
     tau = full_mandel(disc, sig.reshape(-1, d + 1, d, d), offset)
     del sig
+    release_freed_memory()
     if d == 2:
         tau = optimal_tau33(disc, tau)
     field = admissible_field(split.disc, tau, lam, contact_nodes)
@@ -357,6 +363,7 @@ def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = Non
         lf = equilibrated_field(disc, solution.sigma, solution.contact_force, n_sweeps, progress=report,
                                 descent=descent, upper=upper)
     sd = lf.split.disc
+    release_freed_memory()
     t1 = time.perf_counter()
     psi = psi_weights(sd, sd.facet_topology)
     cert = certify_static(sd, lf.field, CERTIFY_TOL)

@@ -265,7 +265,8 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
 
     contact_measure = facet_measure(mesh.points[topo.contact_facets])
     # Mandel vectors are orthonormal coordinates: their norm is the tensor's Frobenius norm
-    s = max(_vmax(np.linalg.norm(tau, axis=-1)), _vmax(lam), F / contact_measure.sum())
+    # (squared by einsum: np.linalg.norm would square a copy of the whole field first)
+    s = max(np.sqrt(_vmax(np.einsum("eak,eak->ea", tau, tau))), _vmax(lam), F / contact_measure.sum())
 
     def traction(elements, vertices, nodes):
         nrm = outward_facet_normals(mesh.points, mesh.cells, elements, nodes)

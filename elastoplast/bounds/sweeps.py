@@ -18,8 +18,9 @@ from elastoplast.bounds.lift import balance_matrices as vertex_balance_matrices
 from elastoplast.fem.material import Material, von_mises
 from elastoplast.limits import blocks
 
-#: elements per block of :func:`element_imbalance`
-IMBALANCE_BLOCK = 1 << 14
+#: elements per block of :func:`element_imbalance` (a block's balance rows and their squares:
+#: some 10 kB per element; 4k elements keep them near 40 MB)
+IMBALANCE_BLOCK = 1 << 12
 #: passes of the round-off repair at most (each visits every colour)
 REPAIR_PASSES = 4
 #: the element imbalance (relative to ``|C_e| max|t|``) below which the repair stops: round-off

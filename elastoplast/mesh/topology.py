@@ -3,6 +3,7 @@ tables, facets, boundary facets, normals, facet connectivity."""
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,10 +62,32 @@ def unique_rows(a: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return uniq, inverse.ravel(), counts
 
 
+def row_classes(parts, n: int) -> tuple[np.ndarray, int]:
+    """``(inverse, number of distinct rows)`` of the rows of the integer arrays ``parts`` (an
+    iterable of arrays of one width, entries in ``[0, n)``, read once, taken in order):
+    :func:`unique_rows`' inverse of their concatenation without the unique rows, and, where
+    the :func:`row_keys` fit, without the rows themselves at once (each part becomes its keys
+    as it comes: the facets of a large mesh, where only each row's class is needed)."""
+    keys, rows = [], []
+    for part in parts:
+        part = np.asarray(part, dtype=np.int64)
+        if keys_fit(n, part.shape[1]):
+            keys.append(row_keys(part, n))
+        else:
+            rows.append(part)
+    if rows:  # one width for all parts: the keys fit for all of them or for none
+        _, inverse = np.unique(np.concatenate(rows), axis=0, return_inverse=True)
+    elif keys:
+        _, inverse = np.unique(np.concatenate(keys), return_inverse=True)
+    else:
+        return np.zeros(0, dtype=np.int64), 0
+    inverse = inverse.ravel()
+    return inverse, int(inverse.max(initial=-1)) + 1
+
+
 def locate_rows(table: np.ndarray, queries: np.ndarray, n: int) -> np.ndarray:
     """Index in ``table`` (unique rows) of each row of ``queries``, -1 where absent."""
-    both = np.concatenate([table, queries]).astype(np.int64)
-    _, inverse, _ = unique_rows(both, n)
+    inverse, _ = row_classes([table, queries], n)
     where = np.full(inverse.max(initial=-1) + 1, -1, dtype=np.int64)
     where[inverse[: len(table)]] = np.arange(len(table))
     return where[inverse[len(table):]]
@@ -200,33 +223,41 @@ def facet_topology(mesh, boundary) -> FacetTopology:
     element, non-manifold meshes and an empty contact zone.
     """
     cells, d = mesh.cells, mesh.dim
-    faces, elem, loc = element_facets(cells)
+    n_el, q = cells.shape
+    # facet j of element e is row j * n_el + e (as element_facets'), never all formed at once: a
+    # split mesh has millions, and only their classes and the rows kept below are needed
+    opposite = np.array([[i for i in range(q) if i != j] for j in range(q)])  # the vertices of facet j
+    n_faces = n_el * q
+
+    def facet_rows(r):
+        return np.sort(cells[(r % n_el)[:, None], opposite[r // n_el]], axis=1)
 
     named = [("clamped", name) for name in boundary.clamped] + [("contact", name) for name in boundary.contact]
     named += [(f"fix_component.{'xyz'[c]}", name) for c, names in boundary.fix_component.items() for name in names]
     group_faces = [np.sort(np.asarray(mesh.groups[name], dtype=np.int64).reshape(-1, d), axis=1) for _, name in named]
-    rows = np.concatenate([faces] + group_faces)
-    uniq, inv, _ = unique_rows(rows, max(mesh.n_nodes, int(rows.max(initial=-1)) + 1))
-    n_unique = uniq.shape[0]
-    del rows, uniq  # as large as the facets, and only their number is needed (a split mesh has millions)
-    fid = inv[: faces.shape[0]]
+    n_ids = max([mesh.n_nodes] + [int(g.max(initial=-1)) + 1 for g in group_faces])
+    inv, n_unique = row_classes(itertools.chain((np.sort(cells[:, opposite[j]], axis=1) for j in range(q)), group_faces),
+                                n_ids)
+    fid = inv[:n_faces]
     counts = np.bincount(fid, minlength=n_unique)
     if np.any(counts > 2):
         raise InputError("mesh", f"{int(np.sum(counts > 2))} facet(s) shared by more than two elements (non-manifold mesh)")
 
-    order = np.argsort(fid, kind="stable")
-    fs = fid[order]
-    two = counts[fs] == 2
-    first = order[two][0::2]
-    second = order[two][1::2]
+    order = np.argsort(fid, kind="stable")  # each temporary below is released once used
+    two = counts[fid[order]] == 2
+    paired = order[two]
+    first, second = paired[0::2], paired[1::2]
     one = order[~two]
-    i_nodes = faces[first]
-    i_elem = np.stack([elem[first], elem[second]], axis=1)
-    i_loc = np.stack([loc[first], loc[second]], axis=1)
-    i_vert = np.stack([local_vertex_indices(cells, i_elem[:, s], i_nodes) for s in range(2)], axis=1)
+    del order, two
+    i_nodes = facet_rows(first)
+    b_nodes = facet_rows(one)
+    i_elem = np.stack([first % n_el, second % n_el], axis=1)
+    i_loc = np.stack([first // n_el, second // n_el], axis=1)
+    i_vert = np.empty((first.size, 2, d), dtype=np.int64)
+    for s in range(2):
+        i_vert[:, s] = local_vertex_indices(cells, i_elem[:, s], i_nodes)
 
-    b_nodes = faces[one]
-    b_elem, b_loc = elem[one], loc[one]
+    b_elem, b_loc = one % n_el, one // n_el
     b_vert = local_vertex_indices(cells, b_elem, b_nodes)
     position = -np.ones(n_unique, dtype=np.int64)
     position[fid[one]] = np.arange(one.size)
@@ -235,7 +266,7 @@ def facet_topology(mesh, boundary) -> FacetTopology:
 
     fixed = np.zeros((one.size, d), dtype=bool)
     contact = np.zeros(one.size, dtype=bool)
-    start = faces.shape[0]
+    start = n_faces
     ignored = 0
     for (key, name), gf in zip(named, group_faces):
         ids = inv[start: start + gf.shape[0]]

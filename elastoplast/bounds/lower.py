@@ -297,10 +297,10 @@ LOCAL_BOUND_BYTES_PER_ELEMENT = {2: 12_000, 3: 50_000}
 #: 378 MB at 12,288 tetrahedra and 1,335 MB at 98,304, 11.1 kB per added tetrahedron (with
 #: the descent: 597 MB and 3,651 MB, 35.5 kB); 2D cylinder 231 MB at 25,600 triangles (270 MB
 #: with the descent; newton alone 150 MB). 3D re-measured after the sweeps' structures were
-#: freed before the lift and the repair and the certificate ran by blocks
-#: (benchmarks/bounds/local_scale.md at 0d567a4; the process also ran the solve to 1e-13 and the
-#: upper bound, and holds about 225 MB of libraries before any of it): 904 MB at 98,304
-#: tetrahedra, 2,015 MB at 292,008, 6,361 MB at 1,029,000, at most 6.9 kB per tetrahedron
+#: freed before the lift and the repair and the certificate ran by blocks, and the heap trimmed
+#: between phases (benchmarks/bounds/local_scale.md at aaa8bf4; the process also ran the solve
+#: to 1e-13 and the upper bound, and holds about 225 MB of libraries before any of it): 621 MB
+#: at 98,304 tetrahedra, 1,353 MB at 292,008, 4,158 MB at 1,029,000, at most 4.3 kB per tetrahedron
 #: above the libraries. The estimate stays at 16 kB: `adapt` plans with it too, and its process
 #: (which also holds the previous mesh and its bounds) peaked at 10.3 GB at 856,682 tetrahedra,
 #: 12 kB each, before this change (benchmarks/adapt/local_scale/), not re-measured since.

@@ -389,11 +389,9 @@ def element_context(maps: ElementMaps, faces: Faces, ctx: dict) -> None:
     facets' orientations as floats (what the compiled loops read)."""
     if "TP" not in ctx:
         d, n = maps.J.shape[1], maps.J.shape[0]
-        TP = None
+        TP = np.empty((n, ctx["T"].shape[0], len(MANDEL_PAIRS[d])))
         for sl in blocks(n, PIOLA_BLOCK):  # piola's products for the whole mesh are 3 times TP
-            part = piola(maps, np.arange(sl.start, sl.stop), ctx["T"])
-            TP = np.empty((n,) + part.shape[1:]) if TP is None else TP
-            TP[sl] = part
+            TP[sl] = piola(maps, np.arange(sl.start, sl.stop), ctx["T"])
         ctx["TP"] = TP
         ctx["scale"] = maps.facet_areas / reference_lift(d).areas
         ctx["sign"] = faces.sign.astype(float)

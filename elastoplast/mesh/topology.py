@@ -109,8 +109,14 @@ def element_facets(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     element of each, local index of the vertex each is opposite to)``; facet ``j`` of
     element ``e`` is row ``j * n_el + e``."""
     n, q = cells.shape
-    facets = np.sort(np.concatenate([np.delete(cells, i, axis=1) for i in range(q)], axis=0), axis=1)
+    facets = np.sort(np.concatenate([cells[:, v] for v in facet_vertices(q)], axis=0), axis=1)
     return facets, np.tile(np.arange(n), q), np.repeat(np.arange(q), n)
+
+
+def facet_vertices(q: int) -> np.ndarray:
+    """``(q, q-1)``: the local vertices of the facet opposite each vertex of a simplex of ``q``
+    vertices, in increasing order (facet ``j`` of :func:`element_facets`)."""
+    return np.array([[i for i in range(q) if i != j] for j in range(q)], dtype=np.int64)
 
 
 def boundary_facets(cells: np.ndarray, n_nodes: int | None = None) -> np.ndarray:
@@ -226,7 +232,7 @@ def facet_topology(mesh, boundary) -> FacetTopology:
     n_el, q = cells.shape
     # facet j of element e is row j * n_el + e (as element_facets'), never all formed at once: a
     # split mesh has millions, and only their classes and the rows kept below are needed
-    opposite = np.array([[i for i in range(q) if i != j] for j in range(q)])  # the vertices of facet j
+    opposite = facet_vertices(q)
     n_faces = n_el * q
 
     def facet_rows(r):

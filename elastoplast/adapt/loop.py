@@ -73,6 +73,7 @@ from typing import Callable
 
 import numpy as np
 
+from elastoplast.fem.axisymmetry import check_not_axisymmetric
 from elastoplast.adapt.budget import (
     MIN_GROWTH,
     affordable_elements,
@@ -260,8 +261,10 @@ def adapt(problem: Problem, options: AdaptOptions = AdaptOptions(),
 
 
 def check_adaptable(problem: Problem) -> None:
-    """Refuse what :func:`adapt` cannot run on, before any work: not a Problem, or H = 0."""
+    """Refuse what :func:`adapt` cannot run on, before any work: not a Problem, an
+    axisymmetric model, or H = 0."""
     expect(problem, Problem, "problem", "ep.problem_from_dict(data) or ep.load_problem(path)")
+    check_not_axisymmetric(problem, "adaptive refinement (its certified bounds)")
     if problem.material.hardening == 0:
         raise InputError("material.hardening", "adaptive refinement needs hardening > 0: bisection breaks the "
                                                "crossed pattern, and with H = 0 P1 meshes that are not crossed lock; "
@@ -273,6 +276,7 @@ def uniform(problem: Problem, options: AdaptOptions = AdaptOptions(), max_elemen
     """The same pipeline refining every element (the comparison of the issue),
     up to ``max_elements`` (default: the options'), without U brackets."""
     expect(problem, Problem, "problem", "ep.problem_from_dict(data) or ep.load_problem(path)")
+    check_not_axisymmetric(problem, "adaptive refinement (its certified bounds)")
     options = AdaptOptions.of(options)
     opts = replace(options, max_elements=max_elements or options.max_elements, bracket="never")
     return _loop(problem, opts, report, adaptive=False)

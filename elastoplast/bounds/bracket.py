@@ -22,6 +22,7 @@ from elastoplast.bounds.upper import (
     upper_bound,
 )
 from elastoplast.errors import InputError, expect
+from elastoplast.fem.axisymmetry import check_not_axisymmetric
 from elastoplast.fem.discretize import Discretization, check_hencky
 from elastoplast.certificate.kkt import real_number
 from elastoplast.certificate.solution import check_solution
@@ -276,6 +277,7 @@ def check_lower_bound_fits(disc: Discretization, options=None, factor: float = 1
     (:func:`~elastoplast.bounds.lower.lower_bound_bytes`, with its solve, the sweeps alone:
     :func:`local_descent` drops the descent where it does not fit)
     exceeds the memory available. Returns the kind, ``"global"`` or ``"local"``."""
+    check_not_axisymmetric(disc.problem, "the certified bounds")
     from elastoplast.bounds.lower import LowerBoundOptions, check_lower_bound_size, lower_bound_bytes, lower_bound_kind
     from elastoplast.limits import check_memory
 
@@ -434,6 +436,7 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
 
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     check_hencky(disc, "the certified bounds")
+    check_not_axisymmetric(disc.problem, "the certified bounds")
     if solution is not None:
         check_solution(disc, solution, "solution", reads=("u",))
     lower_options = LowerBoundOptions.of(lower_options, "lower_options")

@@ -55,6 +55,7 @@ from elastoplast.bounds.lower import (
 )
 from elastoplast.certificate.solution import Status
 from elastoplast.errors import InputError, expect
+from elastoplast.fem.axisymmetry import check_not_axisymmetric
 from elastoplast.fem.discretize import Discretization, check_hencky, free_strain_operator
 from elastoplast.fem.assembly import element_geometry
 from elastoplast.fem.material import identity_vector
@@ -372,6 +373,7 @@ def kinematic_limit_load(disc: Discretization, options: LimitOptions = LimitOpti
     """The kinematic upper bound on the limit load (module docstring)."""
     _check_perfectly_plastic(disc)
     check_hencky(disc, "the limit load")
+    check_not_axisymmetric(disc.problem, "the limit load")
     options = LimitOptions.of(options)
     t0 = time.perf_counter()
     space = velocity_space(disc, options.order)
@@ -449,6 +451,7 @@ def limit_load(disc: Discretization, options: LimitOptions = LimitOptions(),
     not used."""
     _check_perfectly_plastic(disc)
     check_hencky(disc, "the limit load")
+    check_not_axisymmetric(disc.problem, "the limit load")
     options, lower_options = LimitOptions.of(options), LowerBoundOptions.of(lower_options, "lower_options")
     check_lower_bound_size(disc, lower_options, limit=True)  # before the kinematic program, which would run first
     upper = kinematic_limit_load(disc, options)

@@ -72,6 +72,7 @@ from elastoplast.bounds.static import (
 )
 from elastoplast.certificate.solution import Status
 from elastoplast.errors import InputError, expect
+from elastoplast.fem.axisymmetry import check_not_axisymmetric
 from elastoplast.fem.discretize import Discretization, Units, check_hencky, nondimensionalize
 from elastoplast.fem.assembly import element_geometry
 from elastoplast.fem.material import von_mises
@@ -459,6 +460,7 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
     """
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     check_hencky(disc, "the lower bound")
+    check_not_axisymmetric(disc.problem, "the lower bound")
     options = LowerBoundOptions.of(options)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
@@ -527,6 +529,7 @@ def static_limit_load(disc: Discretization, options: LowerBoundOptions = LowerBo
     """
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     check_hencky(disc, "the limit load")
+    check_not_axisymmetric(disc.problem, "the limit load")
     options = LowerBoundOptions.of(options)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from elastoplast.certificate.kkt import energy_norm_sq, gaps
+from elastoplast.fem.axisymmetry import check_not_axisymmetric
 from elastoplast.fem.discretize import Discretization, check_hencky
 from elastoplast.fem.material import Material, return_mapping
 from elastoplast.certificate.kkt import real_number, shaped
@@ -286,6 +287,7 @@ def upper_bound(disc: Discretization, candidate, correction: str = "best") -> Up
 
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     check_hencky(disc, "the upper bound")
+    check_not_axisymmetric(disc.problem, "the upper bound")
     if isinstance(candidate, Solution):
         check_solution(disc, candidate, "candidate", reads=("u",))
         real_number("candidate.U", candidate.U)

@@ -299,6 +299,7 @@ def summary(disc: Discretization, sol: Solution) -> dict[str, Any]:
         "n_elements": disc.n_elements,
         "n_nodes": disc.mesh.n_nodes,
         "dim": disc.dim,
+        "axisymmetric": disc.problem.axisymmetric,
         "gaps_min": float(gaps(disc, disc.free_displacement(sol.u), sol.U).min()),
     }
 

@@ -98,9 +98,15 @@ def shape_gradients(J: np.ndarray) -> np.ndarray:
     return np.concatenate([-Jinv.sum(axis=1, keepdims=True), Jinv], axis=1)
 
 
-def rigid_motions(points: np.ndarray) -> np.ndarray:
-    """Basis ``(n_nodes * d, r)`` of infinitesimal rigid motions at the nodes."""
+def rigid_motions(points: np.ndarray, axisymmetric: bool = False) -> np.ndarray:
+    """Basis ``(n_nodes * d, r)`` of infinitesimal rigid motions at the nodes. In an
+    axisymmetric model only the axial translation is one (a radial translation or an
+    in-plane rotation strains the hoops)."""
     n, d = points.shape
+    if axisymmetric:
+        t = np.zeros((n, d))
+        t[:, 1] = 1.0
+        return t.reshape(-1, 1)
     x = points - points.mean(axis=0)
     modes = []
     for a in range(d):
@@ -114,22 +120,34 @@ def rigid_motions(points: np.ndarray) -> np.ndarray:
     return np.stack([m.ravel() for m in modes], axis=1)
 
 
-def strain_matrices(grads: np.ndarray) -> np.ndarray:
+#: the Mandel row of the hoop strain in an axisymmetric model (the slot that is zero in plane strain)
+HOOP_ROW = 2
+
+
+def strain_matrices(grads: np.ndarray, hoop: np.ndarray | None = None) -> np.ndarray:
     """Element strain matrices ``B_T (n, k, (d+1) d)`` (Mandel rows, local dofs
-    ``a * d + component``) from the shape gradients ``(n, d+1, d)``."""
+    ``a * d + component``) from the shape gradients ``(n, d+1, d)``.
+
+    ``hoop (n,)``, in an axisymmetric model, is ``1 / r_T`` (the centroid's radius):
+    the hoop strain is then the mean nodal radial displacement over ``r_T``
+    (docs/axisymmetry.md); None in plane strain and 3D."""
     n, m, d = grads.shape
     rows = STRAIN_ROWS[d]
     B = np.zeros((n, len(rows), m, d))
     for c, terms in enumerate(rows):
         for comp, der, w in terms:
             B[:, c, :, comp] += w * grads[:, :, der]
+    if hoop is not None:
+        B[:, HOOP_ROW, :, 0] = hoop[:, None] / m
     return B.reshape(n, len(rows), m * d)
 
 
-def element_matrices(grads: np.ndarray, volumes: np.ndarray, D: np.ndarray) -> np.ndarray:
+def element_matrices(grads: np.ndarray, volumes: np.ndarray, D: np.ndarray,
+                     hoop: np.ndarray | None = None) -> np.ndarray:
     """``|T| B_T^T D_T B_T`` ``(n, m, m)`` for one ``D (k, k)`` shared by the
-    ``n`` elements or one each, ``D (n, k, k)``."""
-    B = strain_matrices(grads)
+    ``n`` elements or one each, ``D (n, k, k)`` (``|T|``: the element's weight,
+    ``hoop``: see :func:`strain_matrices`)."""
+    B = strain_matrices(grads, hoop)
     if D.ndim == 2:
         DB = np.matmul(D, B) * volumes[:, None, None]
     else:
@@ -155,7 +173,8 @@ class Layout:
     nodes sharing an element with node i, sorted); ``brow`` is each block's
     row, ``diag`` each node's diagonal block, ``slots (n_el, (d+1)^2)`` the block
     of the local pair ``(a, b)`` of each element. ``grads (n_el, d+1, d)`` are
-    the shape-function gradients and ``volumes`` the element volumes the
+    the shape-function gradients, ``volumes`` the element weights and ``hoop``
+    the reciprocal centroid radii of an axisymmetric model (None otherwise) the
     element matrices are built from (in the units of their discretisation).
     Values on it are ``(n_blocks, d, d)`` blocks (BSR).
     """
@@ -169,6 +188,7 @@ class Layout:
     slots: np.ndarray
     grads: np.ndarray
     volumes: np.ndarray
+    hoop: np.ndarray | None
 
     #: element entries read by :func:`fill` (None: all of them)
     entries = None
@@ -201,7 +221,7 @@ class Layout:
         return out.reshape(s.shape[0], -1)
 
 
-def element_layout(mesh: Mesh, grads: np.ndarray, volumes: np.ndarray) -> Layout:
+def element_layout(mesh: Mesh, grads: np.ndarray, volumes: np.ndarray, hoop: np.ndarray | None = None) -> Layout:
     """The block pattern of ``mesh`` and the slots of its elements' vertex pairs."""
     n, d = mesh.n_nodes, mesh.dim
     cells = mesh.cells
@@ -217,7 +237,7 @@ def element_layout(mesh: Mesh, grads: np.ndarray, volumes: np.ndarray) -> Layout
     diag = np.flatnonzero(brow == indices).astype(it)  # every node is its own neighbour: one per row
     return Layout(dim=d, n_nodes=n, indptr=indptr, indices=indices, brow=brow, diag=diag,
                   slots=inverse.reshape(mesh.n_elements, (d + 1) ** 2).astype(it), grads=grads,
-                  volumes=np.asarray(volumes, dtype=float))
+                  volumes=np.asarray(volumes, dtype=float), hoop=hoop)
 
 
 @dataclass(frozen=True)
@@ -351,5 +371,6 @@ def assemble(lay: Layout, D: np.ndarray, elements: np.ndarray | None = None, out
         De = D if D.ndim == 2 else D[s:s + CHUNK]
         if subtract is not None:
             De = De - subtract
-        fill(target, element_matrices(lay.grads[e], lay.volumes[e], De), e, out)
+        hoop = None if lay.hoop is None else lay.hoop[e]
+        fill(target, element_matrices(lay.grads[e], lay.volumes[e], De, hoop), e, out)
     return out

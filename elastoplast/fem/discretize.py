@@ -17,6 +17,7 @@ from scipy.sparse.csgraph import connected_components
 from elastoplast.limits import check_mesh_size
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.assembly import (
+    HOOP_ROW,
     STRAIN_ROWS,
     Layout,
     ScalarView,
@@ -26,6 +27,7 @@ from elastoplast.fem.assembly import (
     rigid_motions,
     scalar_view,
 )
+from elastoplast.fem.axisymmetry import axis_nodes, check_meridian_mesh, ring_contact_area, ring_weights
 from elastoplast.fem.material import Material, Prestate, n_components
 from elastoplast.mesh.base import Mesh
 from elastoplast.mesh.topology import FacetTopology, boundary_facets, facet_topology
@@ -44,6 +46,11 @@ class Discretization:
     at the contact nodes and ``contact_area`` their lumped share of the flat
     boundary ``x_d = 0`` (used only to turn forces into pressures).
 
+    In an axisymmetric model (``problem.axisymmetric``) ``volumes`` are the element
+    weights ``2 pi |T| r_T``, ``hoop`` the reciprocal centroid radii ``1 / r_T`` that
+    make B's hoop row, and ``contact_area`` the consistent ring areas
+    (:mod:`elastoplast.fem.axisymmetry`); ``hoop`` is None otherwise.
+
     ``state`` is None for Hencky's problem (2.1). A step of a loading path
     (:meth:`step`) carries the material state it starts from; its unknowns are
     then the displacement increment, and ``psi`` is the gap the increment sees.
@@ -60,6 +67,7 @@ class Discretization:
     psi: np.ndarray
     contact_area: np.ndarray
     state: Prestate | None = None
+    hoop: np.ndarray | None = None
 
     @property
     def mesh(self) -> Mesh:
@@ -72,6 +80,12 @@ class Discretization:
     @property
     def dim(self) -> int:
         return self.problem.mesh.dim
+
+    @property
+    def measure_dim(self) -> int:
+        """The dimension of the element measure: 3 in an axisymmetric model (its
+        weights are volumes of rings), the mesh's dimension otherwise."""
+        return 3 if self.problem.axisymmetric else self.dim
 
     @property
     def k(self) -> int:
@@ -116,7 +130,7 @@ class Discretization:
     def layout(self) -> Layout:
         """The block pattern of the stiffness-type matrices over every dof
         (:func:`~elastoplast.fem.assembly.element_layout`), built once."""
-        return element_layout(self.mesh, self.grads, self.volumes)
+        return element_layout(self.mesh, self.grads, self.volumes, self.hoop)
 
     @cached_property
     def free_view(self) -> ScalarView:
@@ -186,7 +200,8 @@ def check_hencky(disc: Discretization, what: str) -> None:
                                  "method), or give Hencky's problem at one force with disc.with_force(F)")
 
 
-def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, chunk: int = 1 << 17) -> sp.csr_matrix:
+def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, chunk: int = 1 << 17,
+                         hoop: np.ndarray | None = None) -> sp.csr_matrix:
     """``B`` on the free dofs (rows ``element * k + component``, Mandel), built
     row by row as CSR.
 
@@ -195,10 +210,13 @@ def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, ch
     element's free dofs, so the CSR arrays are written directly, in chunks of
     elements, without a COO sort or a column slice: at a million tetrahedra
     this takes a few seconds and about the size of B itself, against 16 s and
-    three copies. Indices are 32-bit while they fit.
+    three copies. Indices are 32-bit while they fit. ``hoop`` (axisymmetric models:
+    ``1 / r_T``) adds the hoop row of :func:`~elastoplast.fem.assembly.strain_matrices`.
     """
     d, n = mesh.dim, mesh.n_elements
-    rows = STRAIN_ROWS[d]
+    rows = [list(t) for t in STRAIN_ROWS[d]]
+    if hoop is not None:
+        rows[HOOP_ROW] = [(0, None, 1.0)]
     k, m = len(rows), d + 1
     width = max(len(t) for t in rows) * m
     n_free = int(position.max(initial=-1)) + 1
@@ -212,7 +230,7 @@ def free_strain_operator(mesh: Mesh, grads: np.ndarray, position: np.ndarray, ch
         for c, terms in enumerate(rows):
             for t, (comp, der, w) in enumerate(terms):
                 cols[:, c, t * m:(t + 1) * m] = position[cells * d + comp]
-                vals[:, c, t * m:(t + 1) * m] = w * g[:, :, der]
+                vals[:, c, t * m:(t + 1) * m] = w * (g[:, :, der] if der is not None else hoop[s:s + chunk, None] / m)
         keep = cols >= 0
         data.append(vals[keep])
         indices.append(cols[keep])
@@ -229,8 +247,9 @@ _MOTION_NAMES = {2: ["translation x", "translation y", "rotation in xy"],
                  3: ["translation x", "translation y", "translation z", "rotation in xy", "rotation in yz", "rotation in xz"]}
 
 
-def _check_no_rigid_motion(mesh: Mesh, fixed_mask: np.ndarray) -> None:
-    """Every connected piece of the mesh must have its rigid motions blocked."""
+def _check_no_rigid_motion(mesh: Mesh, fixed_mask: np.ndarray, axisymmetric: bool = False) -> None:
+    """Every connected piece of the mesh must have its rigid motions blocked (in an
+    axisymmetric model the only one is the axial translation)."""
     d = mesh.dim
     e = mesh.cells
     pairs = np.concatenate([e[:, [i, j]] for i in range(d + 1) for j in range(i)], axis=0)
@@ -238,7 +257,7 @@ def _check_no_rigid_motion(mesh: Mesh, fixed_mask: np.ndarray) -> None:
     n_parts, labels = connected_components(adj, directed=False)
     for part in range(n_parts):
         nodes = np.flatnonzero(labels == part)
-        R = rigid_motions(mesh.points[nodes])
+        R = rigid_motions(mesh.points[nodes], axisymmetric)
         mask = fixed_mask.reshape(-1, d)[nodes].ravel()
         Rf = R[mask]
         scale = np.linalg.norm(R, axis=0)
@@ -247,7 +266,7 @@ def _check_no_rigid_motion(mesh: Mesh, fixed_mask: np.ndarray) -> None:
         if rank < R.shape[1]:
             # name a free motion: the one least touched by the fixed dofs
             free_norm = np.linalg.norm(Rf / scale, axis=0) if Rf.size else np.zeros(R.shape[1])
-            name = _MOTION_NAMES[d][int(np.argmin(free_norm))]
+            name = "translation y" if axisymmetric else _MOTION_NAMES[d][int(np.argmin(free_norm))]
             raise InputError(
                 "boundary",
                 f"the fixed displacements leave a rigid motion free ({name}"
@@ -256,12 +275,15 @@ def _check_no_rigid_motion(mesh: Mesh, fixed_mask: np.ndarray) -> None:
             )
 
 
-def _flat_bottom_area(mesh: Mesh, tol: float) -> np.ndarray:
-    """Lumped area of the boundary lying in ``x_d = 0`` at each node."""
+def _flat_bottom_area(mesh: Mesh, tol: float, axisymmetric: bool = False) -> np.ndarray:
+    """Lumped area of the boundary lying in ``x_d = 0`` at each node (the consistent
+    ring area in an axisymmetric model)."""
     d = mesh.dim
     facets = boundary_facets(mesh.cells)
     on_plane = np.all(np.abs(mesh.points[facets][:, :, -1]) <= tol, axis=1)
     facets = facets[on_plane]
+    if axisymmetric:
+        return ring_contact_area(mesh, facets)
     X = mesh.points[facets][:, :, :-1]  # in-plane coordinates
     if d == 2:
         meas = np.abs(X[:, 1, 0] - X[:, 0, 0])
@@ -319,20 +341,28 @@ def discretize(problem: Problem) -> Discretization:
     mesh = problem.mesh
     d = mesh.dim
     check_mesh_arrays(mesh)
-    volumes, grads = element_geometry(mesh)
-
+    extent = float(np.max(mesh.points.max(axis=0) - mesh.points.min(axis=0)))
+    tol = 1e-9 * extent
+    axisymmetric = problem.axisymmetric
     bnd = problem.boundary
+    if axisymmetric:
+        check_meridian_mesh(mesh, bnd.clamped, bnd.fix_component.get(0, ()), tol)
+    volumes, grads = element_geometry(mesh)
+    hoop = None
+    if axisymmetric:
+        volumes, hoop = ring_weights(mesh, volumes)
+
     fixed_mask = np.zeros((mesh.n_nodes, d), dtype=bool)
     fixed_mask[mesh.group_nodes(bnd.clamped)] = True
     for comp, names in bnd.fix_component.items():
         fixed_mask[mesh.group_nodes(names), comp] = True
+    if axisymmetric:
+        fixed_mask[axis_nodes(mesh, tol), 0] = True  # u_r = 0 on the axis, by symmetry
     fixed_mask = fixed_mask.ravel()
 
     contact_nodes = mesh.group_nodes(bnd.contact)
     if contact_nodes.size == 0:
         raise InputError("boundary.contact", f"the contact zone {list(bnd.contact)} has no nodes")
-    extent = float(np.max(mesh.points.max(axis=0) - mesh.points.min(axis=0)))
-    tol = 1e-9 * extent
     off_plane = np.abs(mesh.points[contact_nodes, -1]) > tol
     if np.any(off_plane):
         raise InputError(
@@ -345,18 +375,18 @@ def discretize(problem: Problem) -> Discretization:
     vertical_fixed = fixed_mask.reshape(-1, d)[contact_nodes, d - 1]
     if np.any(vertical_fixed):
         raise InputError("boundary.contact", _vertical_fixed_message(problem, contact_nodes, vertical_fixed))
-    _check_no_rigid_motion(mesh, fixed_mask)
+    _check_no_rigid_motion(mesh, fixed_mask, axisymmetric)
 
     free = np.flatnonzero(~fixed_mask)
     fixed = np.flatnonzero(fixed_mask)
     position = -np.ones(mesh.n_nodes * d, dtype=np.int64)
     position[free] = np.arange(free.size)
-    B = free_strain_operator(mesh, grads, position)
+    B = free_strain_operator(mesh, grads, position, hoop=hoop)
     cols = position[contact_nodes * d + d - 1]
     N = sp.csr_matrix((np.ones(contact_nodes.size), (np.arange(contact_nodes.size), cols)), shape=(contact_nodes.size, free.size))
 
     psi = problem.obstacle.psi(mesh.points[contact_nodes, :-1], field="obstacle")
-    area = _flat_bottom_area(mesh, tol)[contact_nodes]
+    area = _flat_bottom_area(mesh, tol, axisymmetric)[contact_nodes]
     B.data = read_only(B.data)  # operators of one mesh: an edit in place would silently change the problem
     disc = Discretization(
         problem=problem,
@@ -369,6 +399,7 @@ def discretize(problem: Problem) -> Discretization:
         N=N,
         psi=read_only(psi),
         contact_area=read_only(area),
+        hoop=None if hoop is None else read_only(hoop),
     )
     check_scales(disc)
     return disc
@@ -381,7 +412,8 @@ class Units:
     ``stress``: the mean pressure ``F / |Gamma_0|``; ``length``: the mean
     element size ``mean(|T|)**(1/d)``, so that element volumes are O(1) on
     average; ``displacement = length * stress / E``, so strains come in units of
-    ``stress / E``; ``force = stress * length**(d-1)``.
+    ``stress / E``; ``force = stress * length**(d-1)``. (``d`` is the dimension of the
+    measure, ``Discretization.measure_dim``: 3 for the rings of an axisymmetric model.)
     """
 
     stress: float
@@ -393,7 +425,7 @@ class Units:
 
 def reference_units(disc: Discretization) -> Units:
     """The :class:`Units` of ``disc`` (their definitions are in its docstring)."""
-    m, d = disc.material, disc.dim
+    m, d = disc.material, disc.measure_dim
     L = float(disc.volumes.mean() ** (1.0 / d))
     area = disc.contact_area.sum()
     S = disc.force / area if area > 0 else m.E * 1e-3
@@ -454,7 +486,7 @@ def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
     """
     from dataclasses import replace
 
-    m, d = disc.material, disc.dim
+    m, d = disc.material, disc.measure_dim
     units = reference_units(disc)
     S, L = units.stress, units.length
     material = Material(1.0, m.nu, m.yield_stress / S, m.hardening / m.E)
@@ -468,6 +500,7 @@ def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
             B=(disc.B * L).tocsr(),
             psi=np.minimum(disc.psi / units.displacement, PSI_CAP),
             contact_area=disc.contact_area / L ** (d - 1),
+            hoop=None if disc.hoop is None else disc.hoop * L,
             state=None if disc.state is None else disc.state.scaled(S, S / m.E, units.displacement),
         ),
         units,

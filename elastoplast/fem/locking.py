@@ -66,13 +66,20 @@ def crossed_centres(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return result
 
 
-def locking_elements(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+def locking_elements(points: np.ndarray, cells: np.ndarray, axisymmetric: bool = False) -> np.ndarray:
     """Elements that lock under plastic incompressibility (boolean per element): in
     2D the triangles with no criss-cross centre among their vertices, in 3D every
-    tetrahedron (P1 tetrahedra lock on practically any mesh)."""
-    if points.shape[1] == 3:
+    tetrahedron (P1 tetrahedra lock on practically any mesh), in an axisymmetric model
+    every triangle (with the hoop row no nonzero P1 field is incompressible element by
+    element, crossed or not)."""
+    if points.shape[1] == 3 or axisymmetric:
         return np.ones(cells.shape[0], dtype=bool)
     return ~np.any(crossed_centres(points, cells)[cells], axis=1)
+
+
+def is_axisymmetric(disc) -> bool:
+    """Whether ``disc`` (a Discretization or a Problem) is an axisymmetric model."""
+    return bool(getattr(getattr(disc, "problem", disc), "axisymmetric", False))
 
 
 def check_perfect_plasticity(disc) -> None:
@@ -92,10 +99,15 @@ def check_perfect_plasticity(disc) -> None:
     if disc.material.hardening > 0:
         return
     mesh = disc.mesh
-    bad = locking_elements(mesh.points, mesh.cells)
+    axisymmetric = is_axisymmetric(disc)
+    bad = locking_elements(mesh.points, mesh.cells, axisymmetric)
     if not np.any(bad):
         return
-    if mesh.dim == 3:
+    if axisymmetric:
+        why = ("axisymmetric P1 triangles lock under plastically incompressible flow on every mesh, crossed or not "
+               "(the hoop strain leaves no incompressible P1 field)")
+        instead = "use hardening > 0"
+    elif mesh.dim == 3:
         why = "P1 tetrahedra lock under plastically incompressible flow on practically any mesh"
         instead = "use hardening > 0, or `elastoplast limit` for the limit load"
     else:
@@ -148,11 +160,13 @@ def check_hardening_carries_load(disc) -> None:
         return
     pressure, flow = excess
     mesh = disc.mesh
-    if not np.any(locking_elements(mesh.points, mesh.cells)):
+    axisymmetric = is_axisymmetric(disc)
+    if not np.any(locking_elements(mesh.points, mesh.cells, axisymmetric)):
         return
     needed = (pressure / BEARING_FACTOR - m.yield_stress) / SMALL_STRAIN_LIMIT
-    where = "P1 tetrahedra" if mesh.dim == 3 else "triangles not in a crossed quadrilateral"
-    instead = "or a smaller force" + ("" if mesh.dim == 3 else ", or a crossed mesh (pattern = \"crossed\")")
+    where = ("axisymmetric P1 triangles" if axisymmetric else "P1 tetrahedra" if mesh.dim == 3
+             else "triangles not in a crossed quadrilateral")
+    instead = "or a smaller force" + ("" if mesh.dim == 3 or axisymmetric else ", or a crossed mesh (pattern = \"crossed\")")
     raise InputError("material.hardening",
                      f"hardening = {m.hardening:g} cannot carry force = {disc.force:g} within small strains on a mesh "
                      f"that locks ({where}): the mean pressure over the contact zone, {pressure:.3g}, is "

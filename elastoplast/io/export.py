@@ -114,7 +114,7 @@ class Built:
 
 def _scales(disc: Discretization) -> tuple[Discretization, dict[str, float]]:
     nd, units = nondimensionalize(disc)
-    d = disc.dim
+    d = disc.measure_dim
     size = float(nd.contact_area.sum()) ** (1.0 / (d - 1))
     estimate = 0.5 * nd.force * max(size, 1.0)
     s = {"stress": float(units.stress), "length": float(units.length), "displacement": float(units.displacement),

@@ -153,6 +153,10 @@ def resolve(problem: Problem, method: str, options: Mapping[str, Any],
     }
     if problem.path is not None:  # a loading path (absent otherwise, so that Hencky cases keep their ids)
         spec["path"] = [float(f) for f in problem.path]
+    if problem.obstacle.half_angle is not None:  # a cone (absent otherwise, as the path)
+        spec["obstacle"]["half_angle"] = float(problem.obstacle.half_angle)
+    if problem.axisymmetric:  # an axisymmetric model (absent otherwise, as the path)
+        spec["axisymmetric"] = True
     if adapt is not None:
         spec["adapt"] = {k: adapt[k] for k in sorted(adapt)}
     return ResolvedInput(spec=json.loads(json.dumps(spec)), arrays=arrays)
@@ -180,9 +184,11 @@ def rebuild_problem(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -
         boundary=Boundary(clamped=b["clamped"], contact=b["contact"],
                           fix_component={int(k): tuple(v) for k, v in b["fix_component"].items()}),
         obstacle=Obstacle(shape=o["shape"], dim=o["dim"], radius=o["radius"], center=tuple(o["center"]),
-                          expression=o["expression"]),
+                          expression=o["expression"], half_angle=o.get("half_angle"),
+                          axisymmetric=bool(spec.get("axisymmetric", False))),
         force=spec["force"],
         path=None if spec.get("path") is None else tuple(spec["path"]),
+        axisymmetric=bool(spec.get("axisymmetric", False)),
     )
 
 

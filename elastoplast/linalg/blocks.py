@@ -144,11 +144,11 @@ def block_rows(lay: BlockLayout, data: np.ndarray, dofs: np.ndarray) -> sp.csr_m
 
 
 def near_null_space(lay: BlockLayout) -> np.ndarray:
-    """Rigid-body motions of the nodes ``(n_dofs, 3 or 6)``: the near-null space of
-    every stiffness-type matrix here (the clamped body has none exactly, but
-    they are the smooth, low-energy modes multigrid must coarsen well).
+    """Rigid-body motions of the nodes ``(n_dofs, 3 or 6; 1 in an axisymmetric model)``:
+    the near-null space of every stiffness-type matrix here (the clamped body has none
+    exactly, but they are the smooth, low-energy modes multigrid must coarsen well).
     Rotations are scaled to the size of the translations."""
-    modes = rigid_motions(lay.points)
+    modes = rigid_motions(lay.points, axisymmetric=lay.hoop is not None)
     return modes / np.linalg.norm(modes, axis=0)
 
 

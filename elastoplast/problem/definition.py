@@ -105,9 +105,11 @@ def _check_psi(psi: np.ndarray, xp: np.ndarray, what: str, field: str, centre=No
 class Obstacle:
     """Rigid body surface ``x_d = -psi(x')`` (docs/math.md).
 
-    ``shape``: ``sphere`` (3D) / ``cylinder`` (2D): ``R - sqrt(R^2 - |x'-c|^2)``;
-    ``paraboloid``: ``|x'-c|^2 / (2R)``; ``flat``: 0; ``expression``: a formula
-    in ``x`` (and ``y`` in 3D).
+    ``shape``: ``sphere`` (3D, and the meridian profile of an axisymmetric model) /
+    ``cylinder`` (2D): ``R - sqrt(R^2 - |x'-c|^2)``; ``paraboloid``: ``|x'-c|^2 / (2R)``;
+    ``cone``: ``|x'-c| / tan(half_angle)`` (``half_angle`` in degrees, between the axis and
+    the flank); ``flat``: 0; ``expression``: a formula in ``x`` (and ``y`` in 3D; ``r`` in
+    an axisymmetric model).
     """
 
     shape: str
@@ -115,6 +117,8 @@ class Obstacle:
     radius: float | None = None
     center: tuple[float, ...] = ()
     expression: str | None = None
+    half_angle: float | None = None
+    axisymmetric: bool = False
 
     def psi(self, xp: np.ndarray, field: str = "obstacle") -> np.ndarray:
         """Evaluate psi at in-plane points ``xp`` (n, d-1); refuses points outside its domain."""
@@ -133,10 +137,15 @@ class Obstacle:
                                   self.center)
             if self.shape == "paraboloid":
                 return _check_psi(r2 / (2.0 * self.radius), xp, "the paraboloid", f"{field}.radius", self.center)
+            if self.shape == "cone":
+                return _check_psi(np.sqrt(r2) / np.tan(np.radians(self.half_angle)), xp, "the cone",
+                                  f"{field}.half_angle", self.center)
         if self.shape == "flat":
             return np.zeros(xp.shape[0])
-        code, constants = compile_expression(self.expression, self.dim, f"{field}.expression")
+        code, constants = compile_expression(self.expression, self.dim, f"{field}.expression", self.axisymmetric)
         env = dict(SAFE_FUNCTIONS, **constants, x=xp[:, 0].copy())
+        if self.axisymmetric:
+            env["r"] = env["x"]
         if self.dim == 3:
             env["y"] = xp[:, 1].copy()
         try:
@@ -166,10 +175,16 @@ class Problem:
     obstacle: Obstacle
     force: float
     path: tuple[float, ...] | None = None
+    axisymmetric: bool = False
 
     def __post_init__(self) -> None:
         if self.path is not None:
             object.__setattr__(self, "path", check_forces(self.path, "load.path"))
+        check_axisymmetric(self.axisymmetric, self.mesh)
+        if self.axisymmetric != getattr(self.obstacle, "axisymmetric", self.axisymmetric):
+            raise InputError("obstacle", "the obstacle was made for a"
+                             + ("n axisymmetric" if self.obstacle.axisymmetric else " plane or 3D")
+                             + " model and the problem is not one (make_obstacle(..., axisymmetric=...))")
 
     @property
     def dim(self) -> int:
@@ -192,6 +207,16 @@ class Problem:
 
         path = check_forces(forces, "load.path")
         return replace(self, force=max(path), path=path)
+
+
+def check_axisymmetric(value: Any, mesh: Mesh) -> bool:
+    """``mesh.axisymmetric``: a boolean, true only for a 2D mesh (the meridian plane)."""
+    if not isinstance(value, bool):
+        raise InputError("mesh.axisymmetric", f"must be true or false, got {short_repr(value)}")
+    if value and mesh.dim != 2:
+        raise InputError("mesh.axisymmetric", "an axisymmetric model is a 2D mesh of the meridian plane (r, z); "
+                                              f"this mesh is {mesh.dim}D")
+    return value
 
 
 def check_forces(forces: Any, field: str = "load.path") -> tuple[float, ...]:
@@ -290,38 +315,55 @@ def make_material(E: float, nu: float, yield_stress: float, hardening: float, *,
     return Material(E, nu, yield_stress, hardening)
 
 
-def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle") -> Obstacle:
+def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle", axisymmetric: bool = False) -> Obstacle:
     """A validated :class:`Obstacle`: the shape's own keys required and checked, and a key
     the shape does not use (``radius`` beside ``flat`` or ``expression``, ``expression``
-    beside any other shape) refused rather than ignored."""
-    _only(section, {"shape", "radius", "center", "expression"}, prefix)
+    beside any other shape) refused rather than ignored. In an axisymmetric model the
+    obstacle is a body of revolution about the axis: its centre is the axis (0), and
+    ``cylinder`` (a plane-strain shape) is refused."""
+    _only(section, {"shape", "radius", "center", "expression", "half_angle"}, prefix)
     shape = section.get("shape")
-    shapes = {"sphere", "paraboloid", "cylinder", "flat", "expression"}
+    shapes = {"sphere", "paraboloid", "cylinder", "cone", "flat", "expression"}
     if not isinstance(shape, str) or shape not in shapes:
         raise InputError(f"{prefix}.shape", f"must be one of {sorted(shapes)}, got {short_repr(shape)}")
     if shape == "cylinder" and dim == 3:
         raise InputError(f"{prefix}.shape", "'cylinder' is the 2D (plane strain) obstacle; use 'sphere' or 'paraboloid' in 3D")
-    if shape == "sphere" and dim == 2:
+    if shape == "cylinder" and axisymmetric:
+        raise InputError(f"{prefix}.shape", "'cylinder' is the plane-strain obstacle; an axisymmetric model is indented "
+                                            "by a body of revolution: use 'sphere', 'paraboloid', 'cone', 'flat' or "
+                                            "'expression' (in r)")
+    if shape == "sphere" and dim == 2 and not axisymmetric:
         shape = "cylinder"  # the same formula with d - 1 = 1
     center = _float_list(section, "center", prefix, dim - 1, default=[0.0] * (dim - 1))
+    if axisymmetric and center != [0.0]:
+        raise InputError(f"{prefix}.center", f"in an axisymmetric model the obstacle is centred on the axis r = 0, "
+                                             f"got {center}: remove the key (or set [0.0])")
     radius = None
     if shape in ("sphere", "cylinder", "paraboloid"):
         radius = _number(section, "radius", prefix)
         if not radius > 0:
             raise InputError(f"{prefix}.radius", f"must be > 0, got {radius!r}")
+    half_angle = None
+    if shape == "cone":
+        half_angle = _number(section, "half_angle", prefix)
+        if not 0.0 < half_angle < 90.0:
+            raise InputError(f"{prefix}.half_angle", "the angle between the cone's axis and its flank, in degrees, "
+                                                     f"must lie in (0, 90), got {half_angle!r}")
     expression = None
     if shape == "expression":
         expression = section.get("expression")
         if not isinstance(expression, str):
             raise InputError(f"{prefix}.expression", "a formula string is required for shape = 'expression'")
-        compile_expression(expression, dim, f"{prefix}.expression")
+        compile_expression(expression, dim, f"{prefix}.expression", axisymmetric)
     written = section["shape"]  # before 'sphere' in 2D became 'cylinder'
-    for key, users in (("radius", ("sphere", "cylinder", "paraboloid")), ("expression", ("expression",))):
+    for key, users in (("radius", ("sphere", "cylinder", "paraboloid")), ("expression", ("expression",)),
+                       ("half_angle", ("cone",))):
         if key in section and written not in users:  # a key the shape ignores would be dropped without a word
             listed = ", ".join(f'"{u}"' for u in users[:-1]) + (" or " if len(users) > 1 else "") + f'"{users[-1]}"'
             raise InputError(f"{prefix}.{key}", f'only for shape = {listed}, not for shape = "{written}", which does '
                                                 "not use it: remove it (or change the shape)")
-    return Obstacle(shape=shape, dim=dim, radius=radius, center=tuple(center), expression=expression)
+    return Obstacle(shape=shape, dim=dim, radius=radius, center=tuple(center), expression=expression,
+                    half_angle=half_angle, axisymmetric=axisymmetric)
 
 
 def _float_list(section: Mapping, key: str, prefix: str, n: int, default=None) -> list[float] | None:
@@ -337,16 +379,18 @@ def _float_list(section: Mapping, key: str, prefix: str, n: int, default=None) -
 GENERATORS = {"rectangle": 2, "box": 3}
 
 
-def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh") -> Mesh:
+def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh", axisymmetric: bool = False) -> Mesh:
     """Read ``file`` or run the ``generator`` ('rectangle' 2D, 'box' 3D); the generator's
     settings are checked by :func:`~elastoplast.mesh.base.structured_mesh` itself (fields
-    ``mesh.<key>``), once for this table and for Python callers."""
+    ``mesh.<key>``), once for this table and for Python callers. For an axisymmetric
+    model the generated rectangle starts on the axis (``origin`` [0, 0]) with its
+    contact zone centred there (``contact_center`` [0]) unless they are given."""
     _only(section, {"file", "generator", "size", "divisions", "origin", "grading", "contact_radius", "contact_center",
-                    "pattern"}, prefix)
+                    "pattern", "axisymmetric"}, prefix)
     if ("file" in section) == ("generator" in section):
         raise InputError(prefix, "give exactly one of 'file' or 'generator'")
     if "file" in section:
-        extra = sorted(set(section) - {"file"})
+        extra = sorted(set(section) - {"file", "axisymmetric"})
         if extra:
             raise InputError(f"{prefix}.{extra[0]}", "only applies to a built-in generator, not to a mesh file")
         if not isinstance(section["file"], str):
@@ -363,23 +407,31 @@ def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh") -> Mesh:
         if key not in section:
             raise InputError(f"{prefix}.{key}", "is required")
     size = _float_list(section, "size", prefix, dim)  # the generator sets the dimension
-    return structured_mesh(size, section["divisions"], section["contact_radius"], origin=section.get("origin"),
-                           contact_center=section.get("contact_center"), grading=section.get("grading", 1.0),
+    origin, centre = section.get("origin"), section.get("contact_center")
+    if axisymmetric and dim == 2:
+        origin = [0.0, 0.0] if origin is None else origin
+        centre = [0.0] if centre is None else centre
+    return structured_mesh(size, section["divisions"], section["contact_radius"], origin=origin,
+                           contact_center=centre, grading=section.get("grading", 1.0),
                            pattern=section.get("pattern", "diagonal"))
 
 
-def default_boundary(mesh: Mesh) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """The paper's setting on a generated block: every face but the bottom clamped."""
-    clamped = tuple(n for n in mesh.groups if n not in ("bottom", "contact"))
+def default_boundary(mesh: Mesh, axisymmetric: bool = False) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The paper's setting on a generated block: every face but the bottom clamped (in an
+    axisymmetric model, every face but the bottom and the axis)."""
+    on_axis = np.abs(mesh.points[:, 0]) <= 1e-9 * float(np.ptp(mesh.points, axis=0).max())
+    clamped = tuple(n for n in mesh.groups if n not in ("bottom", "contact")
+                    and not (axisymmetric and np.all(on_axis[np.asarray(mesh.groups[n])])))
     return clamped, ("contact",)
 
 
 FACETS = {2: "lines", 3: "triangles"}
 
 
-def make_boundary(section: Mapping, mesh: Mesh, generated: bool, prefix: str = "boundary") -> Boundary:
+def make_boundary(section: Mapping, mesh: Mesh, generated: bool, prefix: str = "boundary",
+                  axisymmetric: bool = False) -> Boundary:
     _only(section, {"clamped", "contact", "fix_component"}, prefix)
-    default_clamped, default_contact = default_boundary(mesh) if generated else (None, None)
+    default_clamped, default_contact = default_boundary(mesh, axisymmetric) if generated else (None, None)
     fix_section = _only(section.get("fix_component", {}), set(AXES), f"{prefix}.fix_component")
     clamped = _names(section, "clamped", prefix, default_clamped)
     contact = _names(section, "contact", prefix, default_contact)
@@ -455,13 +507,16 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     for name in ("mesh", "material", "obstacle", "load"):
         if name not in data:
             raise InputError(name, "section is required")
-    mesh = make_mesh(data["mesh"], Path(base_dir))
+    axisymmetric = data["mesh"].get("axisymmetric", False) if isinstance(data["mesh"], Mapping) else False
+    mesh = make_mesh(data["mesh"], Path(base_dir), axisymmetric=axisymmetric is True)
+    axisymmetric = check_axisymmetric(axisymmetric, mesh)
     mat = _only(data["material"], {"E", "nu", "yield_stress", "hardening"}, "material")
     material = make_material(*(_number(mat, k, "material") for k in ("E", "nu", "yield_stress", "hardening")))
-    boundary = make_boundary(data.get("boundary", {}), mesh, generated="generator" in data["mesh"])
+    boundary = make_boundary(data.get("boundary", {}), mesh, generated="generator" in data["mesh"],
+                             axisymmetric=axisymmetric)
     if "generator" in data["mesh"]:
         check_generated_contact_zone(mesh, boundary)
-    obstacle = make_obstacle(data["obstacle"], mesh.dim)
+    obstacle = make_obstacle(data["obstacle"], mesh.dim, axisymmetric=axisymmetric)
     load = _only(data["load"], {"force", "path"}, "load")
     if "force" in load and "path" in load:
         raise InputError("load", "give exactly one of 'force' (Hencky's problem) or 'path' (a loading path of "
@@ -469,13 +524,14 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     if "path" in load:
         path = check_forces(load["path"], "load.path")
         return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle, force=max(path),
-                       path=path)
+                       path=path, axisymmetric=axisymmetric)
     if "force" not in load:
         raise InputError("load.force", "is required (or load.path, a loading path of Prandtl-Reuss steps)")
     force = _number(load, "force", "load")
     if not force > 0:
         raise InputError("load.force", f"must be > 0, got {force!r}")
-    return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle, force=force)
+    return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle, force=force,
+                   axisymmetric=axisymmetric)
 
 
 MAX_PROBLEM_BYTES = 16 * 2**20  # a problem file is a few hundred bytes

@@ -49,8 +49,9 @@ class _FloatConstants(ast.NodeTransformer):
         return ast.copy_location(ast.Name(id=name, ctx=ast.Load()), node)
 
 
-def compile_expression(expr: str, dim: int, fieldname: str):
-    """Compile a formula in x (and y in 3D) allowing only arithmetic and numpy maths.
+def compile_expression(expr: str, dim: int, fieldname: str, axisymmetric: bool = False):
+    """Compile a formula in x (and y in 3D; r, the same as x, in an axisymmetric model)
+    allowing only arithmetic and numpy maths.
 
     Returns ``(code, constants)``: evaluate with ``eval(code, {"__builtins__": {}},
     {**SAFE_FUNCTIONS, **constants, "x": ..., "y": ...})``. The cost is bounded: at most
@@ -60,7 +61,7 @@ def compile_expression(expr: str, dim: int, fieldname: str):
     arguments (no keywords): every intermediate value is a float or an array shaped
     like ``x``.
     """
-    variables = {"x", "y"} if dim == 3 else {"x"}
+    variables = {"x", "y"} if dim == 3 else {"x", "r"} if axisymmetric else {"x"}
     if len(expr) > MAX_EXPRESSION_CHARS:
         raise InputError(fieldname, f"the formula has {len(expr)} characters (at most {MAX_EXPRESSION_CHARS})")
     try:

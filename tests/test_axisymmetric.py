@@ -1,0 +1,198 @@
+"""The meridian-plane model of a body of revolution (docs/axisymmetry.md).
+
+Closed forms: a solid cylinder (radius a, height h) on a flat obstacle covering its
+base, its top held in z and its lateral face free, is in uniaxial stress
+``sigma_zz = -q`` (q = F / (pi a^2)) with ``sigma_rr = sigma_thth = 0``: every P1/P0
+field with u_r = -nu (q/E) r - (kappa/2) r linear and u_z linear in z is exact, so the
+discrete answer is the closed form to round-off on any mesh. With the uniaxial law of
+MATH section 2 (sigma = sigma_y + H eps_p beyond yield) the axial plastic strain is
+``kappa = max(0, q - sigma_y) / H`` at the largest load reached, and U = h (q/E + kappa)
+in loading, unloading (kappa kept) and reloading below the largest load.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import elastoplast as ep
+
+E, NU, SY, H = 200e3, 0.3, 250.0, 20e3
+A_CYL, H_CYL = 1.5, 2.0
+
+
+def cylinder(force=1.0, **mesh):
+    spec = {"generator": "rectangle", "size": [A_CYL, H_CYL], "divisions": [5, 6], "grading": 1.6,
+            "contact_radius": 10.0, "axisymmetric": True}
+    spec.update(mesh)
+    return {"mesh": spec, "material": {"E": E, "nu": NU, "yield_stress": SY, "hardening": H},
+            "boundary": {"clamped": [], "contact": ["bottom"], "fix_component": {"y": ["top"]}},
+            "obstacle": {"shape": "flat"}, "load": {"force": force}}
+
+
+def closed_form(q: float, q_max: float | None = None) -> float:
+    kappa = max(0.0, max(q, q_max or q) - SY) / H
+    return H_CYL * (q / E + kappa)
+
+
+@pytest.mark.parametrize("q", [100.0, 600.0], ids=["elastic", "plastic"])
+@pytest.mark.parametrize("method", ["conic", "conic-displacement", "newton"])
+def test_cylinder_uniaxial_compression_is_exact(q, method):
+    disc = ep.discretize(ep.problem_from_dict(cylinder(q * np.pi * A_CYL**2)))
+    sol = ep.solve(disc, method=method, progress=False)
+    assert sol.status == ep.Status.CONVERGED
+    assert sol.U == pytest.approx(closed_form(q), rel=1e-9)
+    # the stress is uniaxial: sigma_zz = -q, the others zero (Mandel order r, z, theta, rz)
+    np.testing.assert_allclose(sol.sigma, np.tile([0.0, -q, 0.0, 0.0], (disc.n_elements, 1)), atol=1e-7 * q)
+
+
+def test_cylinder_weights_and_ring_areas_are_exact():
+    """sum w_T is the cylinder's volume pi a^2 h, the ring areas sum to the base pi a^2."""
+    disc = ep.discretize(ep.problem_from_dict(cylinder()))
+    assert disc.volumes.sum() == pytest.approx(np.pi * A_CYL**2 * H_CYL, rel=1e-13)
+    assert disc.contact_area.sum() == pytest.approx(np.pi * A_CYL**2, rel=1e-13)
+
+
+def test_cylinder_load_unload_reload_path():
+    qs = [600.0, 300.0, 500.0]
+    disc = ep.discretize(ep.problem_from_dict(cylinder(1.0)))
+    res = ep.solve_path(disc, [q * np.pi * A_CYL**2 for q in qs], "conic", progress=False)
+    assert res.converged
+    expected = [closed_form(600.0), closed_form(300.0, 600.0), closed_form(500.0, 600.0)]
+    np.testing.assert_allclose(res.U, expected, rtol=1e-8)
+
+
+def test_one_step_path_equals_hencky():
+    disc = ep.discretize(ep.problem_from_dict(sphere_problem()))
+    hencky = ep.solve(disc, method="conic", progress=False)
+    path = ep.solve_path(disc, [disc.force], "conic", progress=False)
+    assert path.U[0] == pytest.approx(hencky.U, rel=1e-6)
+
+
+def sphere_problem(force=1500.0, divisions=(16, 16), **material):
+    mat = {"E": E, "nu": NU, "yield_stress": 1000.0, "hardening": 1e4}
+    mat.update(material)
+    return {"mesh": {"generator": "rectangle", "size": [8.0, 8.0], "divisions": list(divisions), "grading": 2.0,
+                     "contact_radius": 1.5, "axisymmetric": True},
+            "material": mat, "obstacle": {"shape": "sphere", "radius": 10.0}, "load": {"force": force}}
+
+
+@pytest.mark.parametrize("method,options,rel", [
+    ("conic-displacement", {}, 1e-6),
+    ("newton", {}, 1e-6),
+    ("newton", {"linear_solver": "amg"}, 1e-5),
+    ("uzawa-fast", {}, 1e-4),
+])
+def test_methods_agree_with_conic(method, options, rel):
+    disc = ep.discretize(ep.problem_from_dict(sphere_problem()))
+    ref = ep.solve(disc, method="conic", progress=False)
+    sol = ep.solve(disc, method=method, progress=False, **options)
+    assert sol.status == ep.Status.CONVERGED
+    assert sol.U == pytest.approx(ref.U, rel=rel)
+    assert sum(sol.contact_force) == pytest.approx(disc.force, rel=1e-6)  # lambda_i are ring forces: the whole F
+
+
+def test_hertz_in_the_meridian_plane():
+    """Elastic sphere indentation (sigma_y out of reach) against Hertz: a^3 = 3 F R / (4 E*),
+    delta = a^2 / R. The block is 8 mm (about 20 a) clamped on its outer face and top, so
+    its compliance is finite: the approach lies below Hertz's half-space value by a few
+    per cent (a point load on a clamped cylinder of size L adds O(a / L) relative);
+    the contact radius is known to within one contact-zone element (1.5 mm / 16 cells,
+    graded finer at the centre)."""
+    F, R = 1500.0, 10.0
+    disc = ep.discretize(ep.problem_from_dict(sphere_problem(F, (48, 48), yield_stress=1e9)))
+    sol = ep.solve(disc, method="conic", progress=False)
+    Es = E / (1 - NU**2)
+    a = (3 * F * R / (4 * Es)) ** (1 / 3)
+    r = disc.mesh.points[disc.contact_nodes, 0]
+    active = r[np.asarray(sol.contact_force) > 1e-8 * F]
+    h = np.diff(np.sort(r)).max(initial=0.0)
+    assert abs(active.max() - a) <= h
+    assert sol.U == pytest.approx(a**2 / R, rel=0.06)
+
+
+def test_three_d_quarter_model_approaches_the_axisymmetric_answer():
+    """The same solid (a cylinder of radius 1.5, height 2, in uniaxial compression) in 3D
+    as a quarter box is not a cylinder; instead compare the elastic sphere on the
+    meridian rectangle's revolution with its 3D quarter model: U from the two models
+    of the same continuum problem differ by the discretisation error, which shrinks
+    under refinement."""
+    pytest.importorskip("scipy")
+    F, R = 400.0, 10.0
+    axi = ep.solve(ep.discretize(ep.problem_from_dict(sphere_problem(F, (32, 32), yield_stress=1e9))),
+                   method="conic", progress=False).U
+    errs = []
+    for n in (4, 8):
+        data = {"mesh": {"generator": "box", "origin": [0.0, 0.0, 0.0], "size": [8.0, 8.0, 8.0], "divisions": [n, n, n],
+                         "grading": 2.0, "contact_radius": 1.5},
+                "material": {"E": E, "nu": NU, "yield_stress": 1e9, "hardening": 1e4},
+                "boundary": {"clamped": ["xmax", "ymax", "top"], "contact": ["contact"],
+                             "fix_component": {"x": ["xmin"], "y": ["ymin"]}},
+                "obstacle": {"shape": "sphere", "radius": R}, "load": {"force": F / 4}}
+        U3 = ep.solve(ep.discretize(ep.problem_from_dict(data)), method="conic", progress=False).U
+        errs.append(abs(U3 - axi))
+    assert errs[1] < errs[0]
+
+
+def refused(data, field):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(ep.InputError) as info:
+            ep.discretize(ep.problem_from_dict(data))
+    assert info.value.field == field, str(info.value)
+
+
+def test_refusals():
+    d = cylinder(1.0)
+    refused({**d, "mesh": {**d["mesh"], "axisymmetric": "yes"}}, "mesh.axisymmetric")
+    refused({**d, "mesh": {"generator": "box", "size": [1.0, 1.0, 1.0], "divisions": [2, 2, 2], "contact_radius": 9.0,
+                           "axisymmetric": True}}, "mesh.axisymmetric")
+    refused({**d, "mesh": {**d["mesh"], "origin": [-0.5, 0.0]}}, "mesh")
+    refused({**d, "boundary": {"clamped": ["xmin"], "contact": ["bottom"], "fix_component": {"y": ["top"]}}},
+            "boundary.clamped")
+    refused({**d, "boundary": {"clamped": [], "contact": ["bottom"], "fix_component": {"x": ["xmin"], "y": ["top"]}}},
+            "boundary.fix_component.x")
+    refused({**d, "obstacle": {"shape": "cone", "half_angle": 90.0}}, "obstacle.half_angle")
+    refused({**d, "obstacle": {"shape": "cone"}}, "obstacle.half_angle")
+    refused({**d, "obstacle": {"shape": "cylinder", "radius": 3.0}}, "obstacle.shape")
+    refused({**d, "obstacle": {"shape": "sphere", "radius": 3.0, "center": [0.5]}}, "obstacle.center")
+    refused({**d, "obstacle": {"shape": "sphere", "radius": 1.0}}, "obstacle.radius")  # the zone reaches r = 1.5
+    refused({**d, "boundary": {"clamped": [], "contact": ["bottom"]}}, "boundary")  # axial translation free
+
+
+def test_perfect_plasticity_and_bounds_are_refused():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        disc = ep.discretize(ep.problem_from_dict(sphere_problem(hardening=0.0)))
+        with pytest.raises(ep.InputError) as info:
+            ep.solve(disc, method="conic", progress=False)
+    assert info.value.field == "material.hardening"
+    disc = ep.discretize(ep.problem_from_dict(sphere_problem()))
+    sol = ep.solve(disc, method="conic", progress=False)
+    with pytest.raises(ep.InputError) as info:
+        ep.upper_bound(disc, sol)
+    assert info.value.field == "mesh.axisymmetric"
+
+
+def test_cone_and_expression_obstacles():
+    """A cone of half-angle alpha is psi = r / tan(alpha); the same as an expression in r."""
+    base = sphere_problem(2.0, hardening=1e5)  # a sharp tip: a small force keeps the strains small
+    cone = ep.discretize(ep.problem_from_dict({**base, "obstacle": {"shape": "cone", "half_angle": 70.3}}))
+    expr = ep.discretize(ep.problem_from_dict({**base, "obstacle": {"shape": "expression",
+                                                                     "expression": "r / tan(70.3 * pi / 180)"}}))
+    r = cone.mesh.points[cone.contact_nodes, 0]
+    np.testing.assert_allclose(cone.psi, r / np.tan(np.radians(70.3)), rtol=1e-14)
+    np.testing.assert_allclose(expr.psi, cone.psi, rtol=1e-12)
+    ref = ep.solve(cone, method="conic", progress=False)
+    sol = ep.solve(cone, method="newton", progress=False)
+    assert ref.status == sol.status == ep.Status.CONVERGED
+    assert sol.U == pytest.approx(ref.U, rel=1e-6)
+
+
+def test_certificate_refuses_a_perturbed_answer():
+    disc = ep.discretize(ep.problem_from_dict(sphere_problem()))
+    sol = ep.solve(disc, method="conic", progress=False)
+    bad = ep.certify(disc, sol.sigma * 1.01, sol.xi, sol.u, sol.U, sol.contact_force)
+    assert bad.worst > 1e3 * sol.kkt.worst

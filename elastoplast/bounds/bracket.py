@@ -14,7 +14,6 @@ from typing import Callable
 
 import numpy as np
 
-from elastoplast.fem.axisymmetry import refuse_axisymmetric
 from elastoplast.bounds.upper import (
     BRACKET_RETRIES,
     GAP_FLOOR,
@@ -329,7 +328,6 @@ def lower_bound(disc: Discretization, solution=None, options=None, *, progress: 
     bound. ``progress(fraction, what)`` is called as the bound advances; ``upper``, the Pi of
     an upper bound on ``disc``, lets the local bound's descent stop once it gains little
     against the gap."""
-    refuse_axisymmetric(disc, "the lower bound")
     import elastoplast.bounds.lower as global_bound
     from elastoplast.certificate.solution import Solution
 

@@ -47,7 +47,6 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from elastoplast.fem.axisymmetry import refuse_axisymmetric
 from elastoplast.bounds.lower import (
     LimitLowerBound,
     LowerBoundOptions,
@@ -372,7 +371,6 @@ def evaluate_kinematic(disc: Discretization, space: VelocitySpace, v: np.ndarray
 
 def kinematic_limit_load(disc: Discretization, options: LimitOptions = LimitOptions()) -> KinematicBound:
     """The kinematic upper bound on the limit load (module docstring)."""
-    refuse_axisymmetric(disc, "the limit load")
     _check_perfectly_plastic(disc)
     check_hencky(disc, "the limit load")
     check_not_axisymmetric(disc.problem, "the limit load")

@@ -58,7 +58,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from elastoplast.fem.axisymmetry import refuse_axisymmetric
 from elastoplast.bounds.program import Program, lower_bound_program
 from elastoplast.bounds.repair import repair_static
 from elastoplast.bounds.static import (
@@ -402,7 +401,6 @@ def _scs(prog: Program, options: LowerBoundOptions) -> ConicAnswer:
     values of either sign would each cost the repair another round). The repair makes
     the answer exactly admissible whatever SCS's residuals (of the size of ``scs_eps``).
     """
-    refuse_axisymmetric(disc, "the lower bound")
     res = solve_scs(prog.P, prog.q, prog.A, prog.b, prog.cones, options.scs_eps, options.scs_max_iter,
                     options.verbose, options.time_limit)
     lam = prog.cols["lam"]

@@ -92,15 +92,6 @@ class Discretization:
         return n_components(self.dim)
 
     @property
-    def axisymmetric(self) -> bool:
-        return self.hoop is not None
-
-    @property
-    def measure_dim(self) -> int:
-        """The dimension of the weights' measure: 3 in axisymmetry (dV = 2 pi r dr dz), else d."""
-        return 3 if self.axisymmetric else self.dim
-
-    @property
     def n_elements(self) -> int:
         return self.volumes.size
 
@@ -300,11 +291,6 @@ def _flat_bottom_area(mesh: Mesh, tol: float, axisymmetric: bool = False) -> np.
         v1, v2 = X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]
         meas = 0.5 * np.abs(v1[:, 0] * v2[:, 1] - v1[:, 1] * v2[:, 0])
     area = np.zeros(mesh.n_nodes)
-    if axisymmetric:  # int_seg phi_a r ds = h (2 r_a + r_b) / 6
-        r = X[:, :, 0]
-        ring = 2.0 * np.pi * meas[:, None] * (2.0 * r + r[:, ::-1]) / 6.0
-        np.add.at(area, facets.ravel(), ring.ravel())
-        return area
     np.add.at(area, facets.ravel(), np.repeat(meas / d, d))
     return area
 
@@ -512,7 +498,6 @@ def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
             volumes=disc.volumes / L**d,
             grads=disc.grads * L,
             B=(disc.B * L).tocsr(),
-            hoop=None if disc.hoop is None else disc.hoop * L,
             psi=np.minimum(disc.psi / units.displacement, PSI_CAP),
             contact_area=disc.contact_area / L ** (d - 1),
             hoop=None if disc.hoop is None else disc.hoop * L,

@@ -26,8 +26,8 @@ class BlockLayout(Layout):
     component``) and ``points`` are the nodes in the layout's length unit (for
     the near-null space)."""
 
-    free: np.ndarray = None  # always given (a default only because Layout's hoop has one)
-    points: np.ndarray = field(default=None, repr=False)
+    free: np.ndarray
+    points: np.ndarray = field(repr=False)
 
     def embed(self, x_free: np.ndarray, free_index: np.ndarray) -> np.ndarray:
         """A vector on the free dofs as a vector on every dof (zeros at fixed ones)."""

@@ -326,10 +326,6 @@ def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle", axisymme
     shapes = {"sphere", "paraboloid", "cylinder", "cone", "flat", "expression"}
     if not isinstance(shape, str) or shape not in shapes:
         raise InputError(f"{prefix}.shape", f"must be one of {sorted(shapes)}, got {short_repr(shape)}")
-    if axisymmetric and shape == "cylinder":
-        raise InputError(f"{prefix}.shape", "'cylinder' is the plane-strain obstacle; an axisymmetric problem is "
-                                            "indented by a body of revolution: 'sphere', 'paraboloid', 'cone', 'flat' "
-                                            "or an expression in r")
     if shape == "cylinder" and dim == 3:
         raise InputError(f"{prefix}.shape", "'cylinder' is the 2D (plane strain) obstacle; use 'sphere' or 'paraboloid' in 3D")
     if shape == "cylinder" and axisymmetric:

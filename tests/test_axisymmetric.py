@@ -96,44 +96,60 @@ def test_methods_agree_with_conic(method, options, rel):
 
 def test_hertz_in_the_meridian_plane():
     """Elastic sphere indentation (sigma_y out of reach) against Hertz: a^3 = 3 F R / (4 E*),
-    delta = a^2 / R. The block is 8 mm (about 20 a) clamped on its outer face and top, so
-    its compliance is finite: the approach lies below Hertz's half-space value by a few
-    per cent (a point load on a clamped cylinder of size L adds O(a / L) relative);
-    the contact radius is known to within one contact-zone element (1.5 mm / 16 cells,
-    graded finer at the centre)."""
+    p0 = 3 F / (2 pi a^2), delta = a^2 / R (MATH section 8). Hertz's a must lie between the
+    last node in contact and the first free one (the discrete contact radius's own
+    uncertainty). The block is 8 mm (about 20 a) clamped on its outer face and top: a
+    stiffer support than the half-space, so the approach lies below Hertz's, by O(a / L)
+    relative (measured -3.9%), allowed up to 6%. The peak nodal pressure (ring force over
+    consistent ring area, an average over the node's neighbourhood, h = 0.07 mm at the
+    centre against a = 0.37 mm) lies within 5% of p0 (measured -2%)."""
     F, R = 1500.0, 10.0
     disc = ep.discretize(ep.problem_from_dict(sphere_problem(F, (48, 48), yield_stress=1e9)))
     sol = ep.solve(disc, method="conic", progress=False)
     Es = E / (1 - NU**2)
     a = (3 * F * R / (4 * Es)) ** (1 / 3)
     r = disc.mesh.points[disc.contact_nodes, 0]
-    active = r[np.asarray(sol.contact_force) > 1e-8 * F]
-    h = np.diff(np.sort(r)).max(initial=0.0)
-    assert abs(active.max() - a) <= h
-    assert sol.U == pytest.approx(a**2 / R, rel=0.06)
+    touching = np.asarray(sol.contact_force) > 1e-8 * F
+    last_active = r[touching].max()
+    first_free = r[~touching & (r > last_active)].min()
+    assert last_active <= a <= first_free
+    p = np.asarray(sol.contact_force) / disc.contact_area
+    assert p.max() == pytest.approx(3 * F / (2 * np.pi * a**2), rel=0.05)
+    assert 0.94 * a**2 / R < sol.U < a**2 / R
+
+
+def quarter_cylinder(n: int, radius: float, height: float, force: float, R: float) -> ep.Problem:
+    """The 3D quarter model of the cylinder of revolution of the meridian rectangle
+    [0, radius] x [0, height]: a box mesh of [0, radius]^2 x [0, height] mapped onto the
+    quarter disc by p -> p max(|x|, |y|) / |p| (the square's max-norm becomes the radius,
+    so the faces xmax, ymax land on the lateral surface), symmetry planes x = 0 and
+    y = 0, lateral face and top clamped as the axisymmetric default, a quarter of F."""
+    box = ep.structured_mesh([radius, radius, height], [n, n, n], 1.5, origin=[0.0, 0.0, 0.0],
+                             contact_center=[0.0, 0.0], grading=2.0)
+    pts = np.array(box.points)
+    xy = pts[:, :2]
+    norm = np.linalg.norm(xy, axis=1)
+    scale = np.divide(xy.max(axis=1), norm, out=np.ones_like(norm), where=norm > 0)
+    pts[:, :2] = xy * scale[:, None]
+    mesh = ep.Mesh(points=pts, cells=box.cells, groups=dict(box.groups))
+    return ep.Problem(mesh=mesh, material=ep.make_material(E, NU, 1e9, 1e4),
+                      boundary=ep.Boundary(clamped=("xmax", "ymax", "top"), contact=("contact",),
+                                           fix_component={0: ("xmin",), 1: ("ymin",)}),
+                      obstacle=ep.Obstacle(shape="sphere", dim=3, radius=R, center=(0.0, 0.0)), force=force / 4)
 
 
 def test_three_d_quarter_model_approaches_the_axisymmetric_answer():
-    """The same solid (a cylinder of radius 1.5, height 2, in uniaxial compression) in 3D
-    as a quarter box is not a cylinder; instead compare the elastic sphere on the
-    meridian rectangle's revolution with its 3D quarter model: U from the two models
-    of the same continuum problem differ by the discretisation error, which shrinks
-    under refinement."""
-    pytest.importorskip("scipy")
+    """The same solid of revolution (radius 8, height 8, elastic sphere R = 10) as a 3D
+    quarter model: its U tends to the axisymmetric one under refinement (both converge
+    to the same continuum U; the axisymmetric mesh is much finer, so its own error is
+    the smaller one). The 3D meshes have 384, 3072 and 10368 tetrahedra."""
     F, R = 400.0, 10.0
     axi = ep.solve(ep.discretize(ep.problem_from_dict(sphere_problem(F, (32, 32), yield_stress=1e9))),
                    method="conic", progress=False).U
-    errs = []
-    for n in (4, 8):
-        data = {"mesh": {"generator": "box", "origin": [0.0, 0.0, 0.0], "size": [8.0, 8.0, 8.0], "divisions": [n, n, n],
-                         "grading": 2.0, "contact_radius": 1.5},
-                "material": {"E": E, "nu": NU, "yield_stress": 1e9, "hardening": 1e4},
-                "boundary": {"clamped": ["xmax", "ymax", "top"], "contact": ["contact"],
-                             "fix_component": {"x": ["xmin"], "y": ["ymin"]}},
-                "obstacle": {"shape": "sphere", "radius": R}, "load": {"force": F / 4}}
-        U3 = ep.solve(ep.discretize(ep.problem_from_dict(data)), method="conic", progress=False).U
-        errs.append(abs(U3 - axi))
-    assert errs[1] < errs[0]
+    errs = [abs(ep.solve(ep.discretize(quarter_cylinder(n, 8.0, 8.0, F, R)), method="conic", progress=False).U - axi)
+            for n in (4, 8, 12)]
+    assert errs[0] > errs[1] > errs[2]  # measured: 2.5e-3, 1.8e-3, 0.6e-3 against U = 5.4e-3
+    assert errs[2] < 0.3 * errs[0]
 
 
 def refused(data, field):

@@ -212,3 +212,14 @@ def test_certificate_refuses_a_perturbed_answer():
     sol = ep.solve(disc, method="conic", progress=False)
     bad = ep.certify(disc, sol.sigma * 1.01, sol.xi, sol.u, sol.U, sol.contact_force)
     assert bad.worst > 1e3 * sol.kkt.worst
+
+
+def test_strong_duality_with_the_weights():
+    """value(S) + value(D) = 0 at the optimum (MATH section 5): with w_T in place of |T|
+    both values are evaluated with the same weights, so the sum vanishes to the solver's
+    tolerance on the plastic sphere problem."""
+    disc = ep.discretize(ep.problem_from_dict(sphere_problem()))
+    sol = ep.solve(disc, method="conic", progress=False)
+    assert sol.status == ep.Status.CONVERGED
+    assert abs(sol.value_S + sol.value_D) <= 1e-8 * max(abs(sol.value_S), abs(sol.value_D))
+    assert sol.value_S != 0.0

@@ -220,7 +220,7 @@ def test_u_bracket_near_the_limit_load_with_perfect_plasticity():
 
     from test_limit_load import punch
 
-    from elastoplast.bounds.lower import static_limit_load
+    from elastoplast.bounds.equilibrium.bound import static_limit_load
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the perfect-plasticity warning

@@ -16,8 +16,8 @@ import scipy.sparse as sp
 
 import elastoplast as ep
 from elastoplast.bounds.bracket import bracket_holds, combine, u_bracket_of
-from elastoplast.bounds.lower import solve_lower_bound
-from elastoplast.bounds.repair import project_affine
+from elastoplast.bounds.equilibrium.bound import solve_lower_bound
+from elastoplast.linalg.direct import project_affine
 from elastoplast.bounds.upper import GAP_FLOOR, best_upper_bound
 from elastoplast.certificate.solution import Status, largest_strain, make_solution
 from elastoplast.cli.main import main

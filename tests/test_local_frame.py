@@ -31,7 +31,7 @@ from elastoplast.bounds.equilibrate import mesh_faces
 from elastoplast.bounds.frame import RingFrame, field_energy, pressure_projection
 from elastoplast.bounds.lift import element_maps
 from elastoplast.bounds.local import local_lower_bound
-from elastoplast.bounds.lower import solve_lower_bound
+from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 from elastoplast.bounds.rings import mesh_rings, ring_batches
 from elastoplast.bounds.static import psi_weights
 from elastoplast.bounds.sweeps import balance_matrices

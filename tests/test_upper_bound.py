@@ -27,7 +27,7 @@ import elastoplast as ep
 from elastoplast.bounds.upper import (EXPRESSION_PIECES, best_upper_bound, conservative_discretization,
     enclosing_radius, hencky_energy_density, penetration_bound, smallest_upper_bound, upper_bound)
 from elastoplast.bounds.bracket import bounds_at, choose_delta, combine, displacement_slope, energy_bounds, u_bracket
-from elastoplast.bounds.lower import solve_lower_bound
+from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 from elastoplast.certificate.solution import value_displacement_form
 
 

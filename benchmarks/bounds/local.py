@@ -48,7 +48,7 @@ NO_GLOBAL = {("sphere_block_3d", (32, 32, 16))}
 def run_one(problem: str, divisions, what: str) -> dict:
     import elastoplast as ep
     from elastoplast.bounds.local import local_lower_bound
-    from elastoplast.bounds.lower import solve_lower_bound
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
     from elastoplast.bounds.upper import best_upper_bound
 
     disc = shipped_problem(problem, divisions)

@@ -44,7 +44,8 @@ def measure_case(name: str, divisions: list[int]) -> dict:
     import elastoplast as ep
     from elastoplast.bounds.upper import best_upper_bound
     from elastoplast.bounds.bracket import combine, u_bracket_of
-    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_bytes, lower_bound_solver, solve_lower_bound
+    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_bytes, lower_bound_solver
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 
     data = ep.read_toml(ROOT / "problems" / f"{name}.toml")
     data["mesh"]["divisions"] = divisions

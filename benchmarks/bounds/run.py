@@ -196,7 +196,7 @@ def run_bounds(family: str, size, mesh_file: str | None) -> dict:
 
 def run_lower(family: str, size, mesh_file: str | None) -> dict:
     """The lower-bound program alone (timed, its own peak memory)."""
-    from elastoplast.bounds.lower import solve_lower_bound
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 
     disc = build(family, size, mesh_file)
     base = peak_memory() / 2**20

@@ -63,7 +63,7 @@ def energy_case(problem: str, divisions) -> dict:
     import elastoplast as ep
     from elastoplast.bounds.bracket import (combine)
     from elastoplast.bounds.upper import conservative_discretization, upper_bound
-    from elastoplast.bounds.lower import solve_lower_bound
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 
     disc = disc_of(problem, divisions)
     sol, t_conic = timed(ep.solve, disc, "conic")

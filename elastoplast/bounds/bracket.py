@@ -321,20 +321,21 @@ def lower_bound(disc: Discretization, solution=None, options=None, *, progress: 
     """The certified lower bound ``-J <= Pi*`` on ``disc`` that ``options.kind`` chooses
     (:class:`~elastoplast.bounds.lower.LowerBoundOptions`, or a mapping of them;
     :func:`~elastoplast.bounds.lower.lower_bound_kind`): the optimum of the equilibrium
-    element (:func:`~elastoplast.bounds.lower.solve_lower_bound`; ``solution`` unused), or the
+    element (:func:`~elastoplast.bounds.equilibrium.bound.solve_lower_bound`; ``solution`` unused), or the
     local field built from ``solution``, a P1 solution of ``disc``
     (:func:`~elastoplast.bounds.local.local_lower_bound`; H > 0). Either is a
     :class:`~elastoplast.bounds.lower.LowerBound`; its ``solver`` is ``"local"`` for the local
     bound. ``progress(fraction, what)`` is called as the bound advances; ``upper``, the Pi of
     an upper bound on ``disc``, lets the local bound's descent stop once it gains little
     against the gap."""
-    import elastoplast.bounds.lower as global_bound
+    import elastoplast.bounds.equilibrium.bound as global_bound
+    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_kind
     from elastoplast.certificate.solution import Solution
 
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
-    options = global_bound.LowerBoundOptions.of(options, "lower_options")
+    options = LowerBoundOptions.of(options, "lower_options")
     check_progress(progress)
-    kind = global_bound.lower_bound_kind(disc, options)
+    kind = lower_bound_kind(disc, options)
     if kind == "global":
         if progress is not None:
             progress(0.0, f"lower bound: global program ({disc.n_elements:,} elements)")

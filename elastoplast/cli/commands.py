@@ -225,7 +225,7 @@ def lower_bound_bar(quiet: bool, kind: str):
 
 
 def _limit(args: argparse.Namespace) -> int:
-    from elastoplast.bounds.limit import LimitOptions, limit_load
+    from elastoplast.bounds.limit_load import LimitOptions, limit_load
     from elastoplast.bounds.lower import LowerBoundOptions
     from elastoplast.io.output import json_text, staged_output
 

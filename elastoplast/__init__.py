@@ -9,8 +9,8 @@ The data flows mesh -> discretisation -> solver -> certificate -> output::
     print(sol.U, sol.kkt.worst)
 """
 
-from elastoplast.bounds.bracket import (Bounds, certified_bounds, choose_delta, combine, energy_bounds, lower_bound,
-                                       u_bracket)
+from elastoplast.bounds.bracket import Bounds, choose_delta, combine, lower_bound, u_bracket
+from elastoplast.references.certified import certified_bounds, energy_bounds
 from elastoplast.bounds.upper import UpperBound, hencky_energy_density, penetration_bound, upper_bound
 from elastoplast.certificate.kkt import KKTResiduals, certify
 from elastoplast.solvers.conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement

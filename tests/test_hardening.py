@@ -412,7 +412,7 @@ def test_campaign_refuses_an_adaptive_target_with_h0_before_running(tmp_path):
 
 def _api_calls(disc):
     from elastoplast.adapt.loop import adapt
-    from elastoplast.bounds.bracket import certified_bounds
+    from elastoplast.references.certified import certified_bounds
 
     return {
         "with_force(-1)": (lambda: disc.with_force(-1.0), "load.force"),
@@ -601,7 +601,8 @@ def test_adapt_plans_under_memory_and_keeps_its_steps_when_refused_mid_run(monke
     from elastoplast.adapt.records import AdaptOptions
     from elastoplast.adapt.loop import adapt
     from elastoplast.adapt.budget import lower_bound_budget
-    from elastoplast.bounds.bracket import combine, u_bracket_of
+    from elastoplast.bounds.bracket import combine
+    from elastoplast.references.certified import u_bracket_of
     from elastoplast.bounds.upper import upper_bound
     import elastoplast.bounds.equilibrium.bound as eq
     from elastoplast.limits import MEMORY_ENV

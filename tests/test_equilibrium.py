@@ -28,7 +28,7 @@ from test_patch import E, H, NU, SY, patch_problem, uniaxial_strain
 
 import elastoplast as ep
 from elastoplast.fem.material import n_components
-from elastoplast.solvers.conic import deviatoric_basis
+from elastoplast.fem.stress_form import deviatoric_basis
 from elastoplast.bounds.static import CERTIFY_TOL, certify_static, mass_matrix, psi_weights, traction_operator
 from elastoplast.bounds.lower import LowerBoundOptions
 from elastoplast.bounds.equilibrium.bound import program_field, solve_program, repaired_field, lower_bound_setup, solve_lower_bound, static_limit_load

@@ -9,17 +9,17 @@ The data flows mesh -> discretisation -> solver -> certificate -> output::
     print(sol.U, sol.kkt.worst)
 """
 
-from elastoplast.bounds.bracket import (Bounds, certified_bounds, choose_delta, combine, energy_bounds, lower_bound,
-                                       u_bracket)
+from elastoplast.bounds.bracket import Bounds, choose_delta, combine, lower_bound, u_bracket
+from elastoplast.references.certified import certified_bounds, energy_bounds
 from elastoplast.bounds.upper import UpperBound, hencky_energy_density, penetration_bound, upper_bound
 from elastoplast.certificate.kkt import KKTResiduals, certify
 from elastoplast.solvers.conic import ConicOptions, solve_conic, solve_conic_cvxpy, solve_conic_displacement
 from elastoplast.fem.discretize import Discretization, discretize
-from elastoplast.bounds.lower import (LowerBound, LowerBoundOptions, lower_bound_kind, solve_lower_bound,
-                                     static_limit_load)
+from elastoplast.bounds.lower import LowerBound, LowerBoundOptions, lower_bound_kind
+from elastoplast.bounds.equilibrium.bound import solve_lower_bound, static_limit_load
 from elastoplast.bounds.static import StaticCertificate, StaticField, certify_static, dual_energy
 from elastoplast.errors import InputError
-from elastoplast.bounds.limit import KinematicBound, LimitBracket, LimitOptions, kinematic_limit_load, limit_load
+from elastoplast.bounds.limit_load import KinematicBound, LimitBracket, LimitOptions, kinematic_limit_load, limit_load
 from elastoplast.fem.material import Material, Prestate, return_mapping, von_mises
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
 from elastoplast.problem.definition import (Boundary, Obstacle, Problem, load_problem, make_material, problem_from_dict,

@@ -12,7 +12,7 @@ import pytest
 
 import elastoplast as ep
 import elastoplast.adapt.loop as ad
-import elastoplast.bounds.bracket as bracket_module
+import elastoplast.references.certified as bracket_module
 import elastoplast.cli.adapt as adapt_command
 from elastoplast.adapt.budget import FIT_STEPS, affordable_elements, next_mesh, predicted_seconds, theta_marking
 from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate, run_bracket
@@ -533,7 +533,7 @@ def test_a_solve_that_misses_only_the_local_bounds_tolerance_does_not_end_the_ru
     solution it can get). Here every solve at the tighter tolerance reports that miss."""
     import elastoplast.solvers.newton as nw
     import elastoplast.solvers.registry as rg
-    from elastoplast.bounds.bracket import LOCAL_SOLVE_TOL
+    from elastoplast.references.solves import LOCAL_SOLVE_TOL
     from elastoplast.certificate.solution import Status
 
     missed = []

@@ -52,7 +52,8 @@ from test_equilibrium import closed_form_energy
 from test_patch import E, H, NU, SY, patch_problem, uniaxial_strain
 
 import elastoplast as ep
-from elastoplast.bounds.bracket import BoundsReport, certified_bounds, energy_bounds
+from elastoplast.bounds.bracket import BoundsReport
+from elastoplast.references.certified import certified_bounds, energy_bounds
 from elastoplast.bounds.upper import contact_facets
 from elastoplast.bounds.static import CERTIFY_TOL
 from elastoplast.mesh.topology import facet_measure
@@ -220,7 +221,7 @@ def test_u_bracket_near_the_limit_load_with_perfect_plasticity():
 
     from test_limit_load import punch
 
-    from elastoplast.bounds.lower import static_limit_load
+    from elastoplast.bounds.equilibrium.bound import static_limit_load
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the perfect-plasticity warning

@@ -28,12 +28,12 @@ from test_patch import E, H, NU, SY, patch_problem, uniaxial_strain
 
 import elastoplast as ep
 from elastoplast.fem.material import n_components
-from elastoplast.solvers.conic import deviatoric_basis
+from elastoplast.fem.stress_form import deviatoric_basis
 from elastoplast.bounds.static import CERTIFY_TOL, certify_static, mass_matrix, psi_weights, traction_operator
-from elastoplast.bounds.lower import (LowerBoundOptions, program_field, solve_program, repaired_field, lower_bound_setup,
-    solve_lower_bound, static_limit_load)
-from elastoplast.bounds.program import lower_bound_program
-from elastoplast.bounds.repair import repair_static
+from elastoplast.bounds.lower import LowerBoundOptions
+from elastoplast.bounds.equilibrium.bound import program_field, solve_program, repaired_field, lower_bound_setup, solve_lower_bound, static_limit_load
+from elastoplast.bounds.equilibrium.program import lower_bound_program
+from elastoplast.bounds.equilibrium.repair import repair_static
 from elastoplast.mesh.topology import facet_measure, facet_topology, outward_facet_normals
 from elastoplast.fem.assembly import element_geometry
 from elastoplast.mesh.topology import boundary_facets

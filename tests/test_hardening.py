@@ -412,7 +412,7 @@ def test_campaign_refuses_an_adaptive_target_with_h0_before_running(tmp_path):
 
 def _api_calls(disc):
     from elastoplast.adapt.loop import adapt
-    from elastoplast.bounds.bracket import certified_bounds
+    from elastoplast.references.certified import certified_bounds
 
     return {
         "with_force(-1)": (lambda: disc.with_force(-1.0), "load.force"),
@@ -448,7 +448,7 @@ def test_python_entry_points_refuse_bad_arguments_naming_them(small_disc, name):
 
 def test_python_entry_points_take_options_as_mappings():
     """One option path: a mapping is checked like an options object (was AttributeError)."""
-    from elastoplast.bounds.limit import kinematic_limit_load
+    from elastoplast.bounds.limit_load import kinematic_limit_load
 
     punch = build(__import__("test_commands").half_punch())
     with pytest.raises(ep.InputError) as exc:
@@ -462,7 +462,7 @@ def test_limit_refuses_a_mesh_too_large_before_the_kinematic_program(tmp_path, c
     allocated until the process aborted (`memory allocation failed`, exit 134); 12,288
     ran past a 20 s --time-limit for minutes. The static program's size limit (Clarabel,
     8,000 tetrahedra) now refuses the mesh before either program runs."""
-    import elastoplast.bounds.limit as limit
+    import elastoplast.bounds.limit_load as limit
 
     def must_not_run(*args, **kwargs):
         raise AssertionError("the kinematic program ran before the size check")
@@ -552,8 +552,8 @@ def test_lower_bound_that_cannot_fit_in_memory_is_refused_before_the_solve(probl
     from elastoplast.adapt.records import AdaptOptions
     from elastoplast.adapt.budget import lower_bound_limit
     from elastoplast.limits import MEMORY_ENV
-    from elastoplast.bounds.lower import (LOWER_BOUND_BYTES_PER_ELEMENT, SEQUENCE_MEMORY_FACTOR, LowerBoundOptions,
-                                         solve_lower_bound)
+    from elastoplast.bounds.lower import LOWER_BOUND_BYTES_PER_ELEMENT, SEQUENCE_MEMORY_FACTOR, LowerBoundOptions
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
     from elastoplast.errors import InputError
 
     monkeypatch.setenv(MEMORY_ENV, "2M")
@@ -601,9 +601,10 @@ def test_adapt_plans_under_memory_and_keeps_its_steps_when_refused_mid_run(monke
     from elastoplast.adapt.records import AdaptOptions
     from elastoplast.adapt.loop import adapt
     from elastoplast.adapt.budget import lower_bound_budget
-    from elastoplast.bounds.bracket import combine, u_bracket_of
+    from elastoplast.bounds.bracket import combine
+    from elastoplast.references.certified import u_bracket_of
     from elastoplast.bounds.upper import upper_bound
-    import elastoplast.bounds.lower as eq
+    import elastoplast.bounds.equilibrium.bound as eq
     from elastoplast.limits import MEMORY_ENV
     from elastoplast.errors import InputError
 

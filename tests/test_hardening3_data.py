@@ -15,10 +15,12 @@ import pytest
 import scipy.sparse as sp
 
 import elastoplast as ep
-from elastoplast.bounds.bracket import bracket_holds, combine, u_bracket_of
-from elastoplast.bounds.lower import solve_lower_bound
-from elastoplast.bounds.repair import project_affine
-from elastoplast.bounds.upper import GAP_FLOOR, best_upper_bound
+from elastoplast.bounds.bracket import bracket_holds, combine
+from elastoplast.references.certified import u_bracket_of
+from elastoplast.bounds.equilibrium.bound import solve_lower_bound
+from elastoplast.linalg.direct import project_affine
+from elastoplast.bounds.bracket import GAP_FLOOR
+from elastoplast.references.solves import best_upper_bound
 from elastoplast.certificate.solution import Status, largest_strain, make_solution
 from elastoplast.cli.main import main
 from elastoplast.errors import InputError

@@ -15,12 +15,18 @@ import pytest
 PACKAGE = Path(__file__).parents[1] / "elastoplast"
 
 #: the layers of docs/architecture.md, in order
-LAYERS = ["base", "mesh", "problem", "fem", "linalg", "certificate", "solvers", "bounds", "adapt", "io", "cli"]
+LAYERS = ["base", "mesh", "problem", "fem", "linalg", "certificate", "solvers", "bounds", "references", "adapt", "io",
+          "cli"]
 BASE = {"errors", "limits", "options", "version"}
 #: exceptions stated in docs/architecture.md: (importing layer, imported module)
 ALLOWED = {("problem", "elastoplast.fem.material")}
 #: stated there too: io/ writes what it is given and never computes bounds
-FORBIDDEN = {("io", "bounds"), ("io", "adapt")}
+FORBIDDEN = {("io", "bounds"), ("io", "references"), ("io", "adapt")}
+#: stated there too: bounds/ computes bounds from the solutions it is given and runs no solve
+#: (the conic building blocks and the backend adapter serve its own programs); what solves and
+#: then bounds is references/
+RUNS_SOLVES = {"elastoplast.solvers.registry", "elastoplast.solvers.path", "elastoplast.solvers.newton",
+               "elastoplast.solvers.uzawa", "elastoplast.solvers.accelerated", "elastoplast.solvers.plugins"}
 
 
 def layer_of(module: str) -> str | None:
@@ -75,6 +81,12 @@ def test_imports_point_to_earlier_layers(module):
         if LAYERS.index(other) > LAYERS.index(own) or (own, other) in FORBIDDEN:
             wrong.append(f"line {line}: {target}")
     assert not wrong, f"{module} ({own}/) imports from later layers: {wrong}"
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if layer_of(m) == "bounds"))
+def test_bounds_run_no_solve(module):
+    runs = [f"line {line}: {target}" for line, target in imports(MODULES[module]) if target in RUNS_SOLVES]
+    assert not runs, f"{module} runs solves (that belongs to references/): {runs}"
 
 
 def test_the_checker_sees_a_wrong_import(tmp_path):

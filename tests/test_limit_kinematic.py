@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast.bounds.limit import LimitOptions, dissipation, kinematic_limit_load, limit_load, velocity_space
+from elastoplast.bounds.limit_load import LimitOptions, dissipation, kinematic_limit_load, limit_load, velocity_space
 
 SY = 250.0
 K = SY / np.sqrt(3.0)

@@ -37,9 +37,9 @@ import elastoplast as ep
 from elastoplast.bounds import contact_layer, local
 from elastoplast.bounds.lift import element_maps, lift, reference_lift
 from elastoplast.bounds.local import equilibrated_field, local_lower_bound
-from elastoplast.bounds.lower import solve_lower_bound
+from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 from elastoplast.bounds.static import certify_static, mass_matrix
-from elastoplast.bounds.upper import best_upper_bound
+from elastoplast.references.solves import best_upper_bound
 from elastoplast.errors import InputError
 from elastoplast.fem.material import von_mises
 

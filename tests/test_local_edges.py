@@ -128,8 +128,8 @@ def _shipped(name, divisions):
 
 
 def test_3d_default_problem_gap_within_the_target_of_the_global_program():
-    from elastoplast.bounds.lower import solve_lower_bound
-    from elastoplast.bounds.upper import best_upper_bound
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
+    from elastoplast.references.solves import best_upper_bound
 
     disc = _shipped("sphere_block_3d", (8, 8, 4))
     sol = ep.solve(disc, "newton")

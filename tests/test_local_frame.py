@@ -31,11 +31,11 @@ from elastoplast.bounds.equilibrate import mesh_faces
 from elastoplast.bounds.frame import RingFrame, field_energy, pressure_projection
 from elastoplast.bounds.lift import element_maps
 from elastoplast.bounds.local import local_lower_bound
-from elastoplast.bounds.lower import solve_lower_bound
+from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 from elastoplast.bounds.rings import mesh_rings, ring_batches
 from elastoplast.bounds.static import psi_weights
 from elastoplast.bounds.sweeps import balance_matrices
-from elastoplast.bounds.upper import best_upper_bound
+from elastoplast.references.solves import best_upper_bound
 from elastoplast.fem.material import von_mises
 
 
@@ -251,7 +251,7 @@ def test_the_descent_goes_on_where_held_rows_nearly_depend():
     from dataclasses import replace
 
     from elastoplast.adapt.loop import AdaptOptions, adapt
-    from elastoplast.bounds.bracket import LOCAL_SOLVE_TOL
+    from elastoplast.references.solves import LOCAL_SOLVE_TOL
 
     problem = ep.problem_from_dict(cylinder_dict(divisions=(24, 12)), base_dir=Path(__file__).parents[1] / "problems")
     run = adapt(problem, AdaptOptions(lower="local", rtol=1e-6, max_iter=3, bracket="never"))
@@ -301,7 +301,7 @@ def test_a_pressure_the_cap_brings_to_zero_is_held_from_the_next_step(monkeypatc
     rule before the change held none of them): every pressure a step took to zero is among
     those the next step starts holding."""
     import elastoplast.bounds.frame as fr
-    from elastoplast.bounds.bracket import LOCAL_SOLVE_TOL
+    from elastoplast.references.solves import LOCAL_SOLVE_TOL
 
     disc = build(cylinder_dict(divisions=(40, 20)))
     sol = ep.solve(disc, "newton", tol=LOCAL_SOLVE_TOL)

@@ -21,8 +21,9 @@ import elastoplast as ep
 import elastoplast.bounds.lower as lower_module
 from elastoplast.adapt.budget import lower_bound_budget
 from elastoplast.adapt.records import AdaptOptions
-from elastoplast.bounds.bracket import (LOCAL_SOLVE_TOL, certified_bounds, check_lower_bound_fits, local_descent,
-                                        local_solution, lower_bound, solve_at)
+from elastoplast.references.solves import LOCAL_SOLVE_TOL, local_solution, solve_at
+from elastoplast.references.certified import certified_bounds
+from elastoplast.bounds.bracket import check_lower_bound_fits, local_descent, lower_bound
 from elastoplast.bounds.local import DESCENT_STEPS
 from elastoplast.bounds.lower import AUTO_GLOBAL_MAX_ELEMENTS, LowerBoundOptions, lower_bound_kind
 from elastoplast.cli.main import main

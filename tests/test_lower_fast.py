@@ -29,9 +29,8 @@ from test_patch import E, H, NU, SY, patch_problem
 
 import elastoplast as ep
 from elastoplast.bounds.static import CERTIFY_TOL, StaticField, dual_energy
-from elastoplast.bounds.lower import (CLARABEL_MAX_ELEMENTS, LOWER_BOUND_MAX_ELEMENTS, LowerBound, LowerBoundOptions,
-    SCS_FROM_ELEMENTS_3D, SCS_YIELD_MARGIN_PER_EPS, yield_margin, check_lower_bound_size, lower_bound_solver,
-    solve_lower_bound, static_limit_load)
+from elastoplast.bounds.lower import CLARABEL_MAX_ELEMENTS, LOWER_BOUND_MAX_ELEMENTS, LowerBound, LowerBoundOptions, SCS_FROM_ELEMENTS_3D, check_lower_bound_size, lower_bound_solver
+from elastoplast.bounds.equilibrium.bound import SCS_YIELD_MARGIN_PER_EPS, yield_margin, solve_lower_bound, static_limit_load
 from elastoplast.fem.material import von_mises
 
 EPS = 1e-6  # SCS's tolerance in these tests (the default of LowerBoundOptions.scs_eps)

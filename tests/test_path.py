@@ -31,7 +31,7 @@ import pytest
 
 import elastoplast as ep
 from elastoplast.errors import InputError
-from elastoplast.bounds.bracket import certified_bounds
+from elastoplast.references.certified import certified_bounds
 from elastoplast.solvers.path import check_path
 
 E, NU, SY, H = 200e3, 0.3, 250.0, 20e3

@@ -24,10 +24,12 @@ from test_equilibrium import closed_form_energy
 from test_patch import E, H, NU, SY, patch_problem, uniaxial_strain
 
 import elastoplast as ep
-from elastoplast.bounds.upper import (EXPRESSION_PIECES, best_upper_bound, conservative_discretization,
-    enclosing_radius, hencky_energy_density, penetration_bound, smallest_upper_bound, upper_bound)
-from elastoplast.bounds.bracket import bounds_at, choose_delta, combine, displacement_slope, energy_bounds, u_bracket
-from elastoplast.bounds.lower import solve_lower_bound
+from elastoplast.bounds.upper import EXPRESSION_PIECES, conservative_discretization, enclosing_radius, hencky_energy_density, penetration_bound, smallest_upper_bound, upper_bound
+from elastoplast.references.solves import best_upper_bound
+from elastoplast.references.certified import bounds_at, energy_bounds
+from elastoplast.bounds.bracket import choose_delta, combine, u_bracket
+from elastoplast.references.solves import displacement_slope
+from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 from elastoplast.certificate.solution import value_displacement_form
 
 

@@ -27,7 +27,7 @@ from elastoplast.adapt.records import AdaptOptions
 from elastoplast.adapt.loop import adapt
 from elastoplast.mesh.refinement import refine
 from elastoplast.bounds.upper import conservative_discretization
-from elastoplast.bounds.lower import solve_lower_bound
+from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 from elastoplast.solvers.newton import NewtonOptions, solve_newton
 from elastoplast.problem.definition import read_toml
 from elastoplast.mesh.refinement import prolong_p1

@@ -90,8 +90,8 @@ def contact_area(disc) -> float:
 
 
 def run_one(n: int, grading: float, pattern: str, what: str) -> dict:
-    from elastoplast.bounds.lower import static_limit_load
-    from elastoplast.bounds.limit import LimitOptions, kinematic_limit_load
+    from elastoplast.bounds.equilibrium.bound import static_limit_load
+    from elastoplast.bounds.limit_load import LimitOptions, kinematic_limit_load
 
     disc = quarter_punch(n) if pattern == "3d" else half_punch(n, grading, pattern)
     out = {"n_elements": int(disc.n_elements)}

@@ -48,8 +48,8 @@ NO_GLOBAL = {("sphere_block_3d", (32, 32, 16))}
 def run_one(problem: str, divisions, what: str) -> dict:
     import elastoplast as ep
     from elastoplast.bounds.local import local_lower_bound
-    from elastoplast.bounds.lower import solve_lower_bound
-    from elastoplast.bounds.upper import best_upper_bound
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
+    from elastoplast.references.solves import best_upper_bound
 
     disc = shipped_problem(problem, divisions)
     out = {"n_elements": int(disc.n_elements)}
@@ -59,7 +59,7 @@ def run_one(problem: str, divisions, what: str) -> dict:
         out.update(time_s=time.perf_counter() - t0, lower=lb.lower, certified=lb.certified,
                    certificate_worst=lb.certificate.worst)
     else:
-        from elastoplast.bounds.bracket import LOCAL_SOLVE_TOL
+        from elastoplast.references.solves import LOCAL_SOLVE_TOL
 
         # the local rows solve to the tolerance `bounds` asks for the local bound (bracket.local_solution)
         sol = ep.solve(disc, "newton", **({} if what == "newton" else {"tol": LOCAL_SOLVE_TOL}))

@@ -38,9 +38,9 @@ QUICK = [(8, 8, 4), (16, 16, 8)]
 
 def run_one(divisions, what: str) -> dict:
     import elastoplast as ep
-    from elastoplast.bounds.bracket import LOCAL_SOLVE_TOL
+    from elastoplast.references.solves import LOCAL_SOLVE_TOL
     from elastoplast.bounds.local import local_lower_bound
-    from elastoplast.bounds.upper import best_upper_bound
+    from elastoplast.references.solves import best_upper_bound
 
     disc = shipped_problem(PROBLEM, divisions)
     out = {"n_elements": int(disc.n_elements)}

@@ -38,7 +38,8 @@ QUICK = {"cylinder_2d": [(24, 12), (40, 20)], "sphere_quarter_3d": [(3, 3, 3)]}
 def run_one(problem: str, divisions, what: str) -> dict:
     """One solve in this process: ``what`` is 'conic' or 'lower-<linear solver>'."""
     import elastoplast as ep
-    from elastoplast.bounds.lower import LowerBoundOptions, solve_lower_bound
+    from elastoplast.bounds.lower import LowerBoundOptions
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 
     disc = shipped_problem(problem, divisions)
     out = {"n_elements": int(disc.n_elements)}

@@ -42,9 +42,11 @@ def _current_gb() -> float:
 def measure_case(name: str, divisions: list[int]) -> dict:
     """One case, in this process: P1 solve, lower bound at F, U bracket."""
     import elastoplast as ep
-    from elastoplast.bounds.upper import best_upper_bound
-    from elastoplast.bounds.bracket import combine, u_bracket_of
-    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_bytes, lower_bound_solver, solve_lower_bound
+    from elastoplast.references.solves import best_upper_bound
+    from elastoplast.bounds.bracket import combine
+    from elastoplast.references.certified import u_bracket_of
+    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_bytes, lower_bound_solver
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 
     data = ep.read_toml(ROOT / "problems" / f"{name}.toml")
     data["mesh"]["divisions"] = divisions

@@ -174,7 +174,7 @@ def contact_extent(disc, sol=None) -> dict:
 def run_bounds(family: str, size, mesh_file: str | None) -> dict:
     """The conic solve (timed, its own peak memory) and the certified bounds."""
     import elastoplast as ep
-    from elastoplast.bounds.bracket import certified_bounds
+    from elastoplast.references.certified import certified_bounds
 
     disc = build(family, size, mesh_file)
     base = peak_memory() / 2**20
@@ -196,7 +196,7 @@ def run_bounds(family: str, size, mesh_file: str | None) -> dict:
 
 def run_lower(family: str, size, mesh_file: str | None) -> dict:
     """The lower-bound program alone (timed, its own peak memory)."""
-    from elastoplast.bounds.lower import solve_lower_bound
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 
     disc = build(family, size, mesh_file)
     base = peak_memory() / 2**20

@@ -82,9 +82,10 @@ def _clarabel_variant(disc, settings: dict) -> dict:
     import clarabel
     import numpy as np
 
-    from elastoplast.bounds.lower import (LowerBoundOptions, lower_bound_kkt_solver, repaired_field, lower_bound_setup)
+    from elastoplast.bounds.lower import LowerBoundOptions
+    from elastoplast.bounds.equilibrium.bound import lower_bound_kkt_solver, repaired_field, lower_bound_setup
     from elastoplast.bounds.static import certify_static, dual_energy
-    from elastoplast.bounds.program import lower_bound_program
+    from elastoplast.bounds.equilibrium.program import lower_bound_program
     from elastoplast.solvers.conic import ConicOptions
     from elastoplast.solvers.backends import clarabel_settings
 
@@ -111,9 +112,10 @@ def _schur(disc) -> dict:
     import numpy as np
     import scipy.sparse as sp
 
-    from elastoplast.bounds.lower import (LowerBoundOptions, lower_bound_setup)
+    from elastoplast.bounds.lower import LowerBoundOptions
+    from elastoplast.bounds.equilibrium.bound import lower_bound_setup
     from elastoplast.bounds.static import mass_matrix
-    from elastoplast.bounds.program import lower_bound_program
+    from elastoplast.bounds.equilibrium.program import lower_bound_program
     from elastoplast.linalg.direct import FACTORIZATIONS
 
     s = lower_bound_setup(disc, LowerBoundOptions(max_elements=10**8))
@@ -139,8 +141,8 @@ def _schur(disc) -> dict:
 
 def run_one(problem: str, divisions, material: dict, method: str) -> dict:
     """One measurement in this process."""
-    from elastoplast.bounds.lower import (LowerBoundOptions, solve_lower_bound,
-        static_limit_load)
+    from elastoplast.bounds.lower import LowerBoundOptions
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound, static_limit_load
 
     disc = _disc(problem, divisions, material)
     out = {"n_elements": int(disc.n_elements)}

@@ -61,9 +61,9 @@ def timed(fn, *args, **kw):
 
 def energy_case(problem: str, divisions) -> dict:
     import elastoplast as ep
-    from elastoplast.bounds.bracket import (combine)
+    from elastoplast.bounds.bracket import combine
     from elastoplast.bounds.upper import conservative_discretization, upper_bound
-    from elastoplast.bounds.lower import solve_lower_bound
+    from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 
     disc = disc_of(problem, divisions)
     sol, t_conic = timed(ep.solve, disc, "conic")
@@ -92,8 +92,9 @@ def energy_case(problem: str, divisions) -> dict:
 
 
 def u_case(divisions, U_ref: dict) -> dict:
-    from elastoplast.bounds.bracket import (bounds_at, choose_delta, displacement_slope, energy_bounds,
-        u_bracket)
+    from elastoplast.references.certified import bounds_at, energy_bounds
+    from elastoplast.bounds.bracket import choose_delta, u_bracket
+    from elastoplast.references.solves import displacement_slope
 
     disc = disc_of("cylinder_2d", divisions)
     (b, t_b) = timed(energy_bounds, disc)

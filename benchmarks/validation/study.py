@@ -505,7 +505,7 @@ def limit_load(disc: ep.Discretization) -> dict[str, Any]:
     """
     import clarabel
 
-    from elastoplast.solvers.conic import deviatoric_basis
+    from elastoplast.fem.stress_form import deviatoric_basis
 
     n, k, nc = disc.n_elements, disc.k, disc.n_contact
     sy = disc.material.yield_stress

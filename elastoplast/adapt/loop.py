@@ -142,7 +142,7 @@ def _lower_options(options: AdaptOptions):
 def _solve_tol(disc: Discretization, options: AdaptOptions) -> float:
     """The P1 tolerance on ``disc``: ``options.tol``, at most the local lower bound's
     (:data:`~elastoplast.bounds.bracket.LOCAL_SOLVE_TOL`) where that bound is used."""
-    from elastoplast.bounds.bracket import LOCAL_SOLVE_TOL
+    from elastoplast.references.solves import LOCAL_SOLVE_TOL
     from elastoplast.bounds.lower import lower_bound_kind
 
     local = lower_bound_kind(disc, _lower_options(options)) == "local"
@@ -170,7 +170,7 @@ def _bound(problem: Problem, options: AdaptOptions, step: int, start: tuple[Solu
     t1 = time.perf_counter()
     lower_options = _lower_options(options)
     if tol < options.tol:  # the local bound: from a solution to its tolerance (conic's polish may fall short)
-        from elastoplast.bounds.bracket import local_solution
+        from elastoplast.references.solves import local_solution
 
         sol = local_solution(disc, sol, options.method)
     lower = lower_bound(disc, sol, lower_options, upper=upper.Pi)
@@ -223,7 +223,7 @@ def _bracketed(done: _Bounded, disc: Discretization, solution: Solution, b: Boun
                step: int | None, t0: float) -> _Bounded:
     """``done`` with the U bracket of the energy bracket ``b`` at F and two more lower bounds on
     ``disc`` (``step``: the step of that mesh when it is an earlier one), timed from ``t0``."""
-    from elastoplast.bounds.bracket import u_bracket_of
+    from elastoplast.references.certified import u_bracket_of
 
     lo, hi, _, certified = u_bracket_of(disc, b, solution.U, _lower_options(options), solution=solution,
                                         method=options.method)

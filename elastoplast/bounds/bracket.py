@@ -14,18 +14,15 @@ from typing import Callable
 
 import numpy as np
 
-from elastoplast.bounds.upper import (
-    BRACKET_RETRIES,
-    GAP_FLOOR,
-    UpperBound,
-    best_upper_bound,
-    upper_bound,
-)
+from elastoplast.bounds.upper import UpperBound
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.axisymmetry import check_not_axisymmetric
-from elastoplast.fem.discretize import Discretization, check_hencky
+from elastoplast.fem.discretize import Discretization
 from elastoplast.certificate.kkt import real_number
-from elastoplast.certificate.solution import check_solution
+
+
+#: the smallest energy gap, relative to the energy, used to choose the U bracket's delta
+GAP_FLOOR = 1e-10
 
 
 @dataclass(frozen=True)
@@ -114,29 +111,11 @@ def combine(upper: UpperBound, lower) -> Bounds:
 
 def bracket_holds(lower: float, upper: float) -> bool:
     """Whether ``lower <= upper`` is a bracket: both finite, in order to the round-off of the
-    bounds themselves (:data:`~elastoplast.bounds.upper.GAP_FLOOR` of their magnitude). Two
+    bounds themselves (:data:`GAP_FLOOR` of their magnitude). Two
     valid bounds always are; an inverted pair proves that one of them is not a bound."""
     if not (math.isfinite(lower) and math.isfinite(upper)):
         return False
     return lower <= upper + GAP_FLOOR * max(abs(lower), abs(upper))
-
-
-def energy_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
-                  lower_options=None, **options) -> Bounds:
-    """``-J <= Pi* <= Pi`` on ``disc``: :func:`best_upper_bound` of ``solution``
-    (solved by ``method`` when not given) and the lower bound of :func:`lower_bound`
-    (``lower_options.kind``)."""
-    return certified_bounds(disc, solution, method, conservative, lower_options, bracket=False, **options).bounds
-
-
-def bounds_at(disc: Discretization, **kwargs) -> Callable[[float], tuple[float, float]]:
-    """``F -> (lo, hi)`` by :func:`energy_bounds` on ``disc`` at load F (for :func:`u_bracket`)."""
-
-    def run(force: float) -> tuple[float, float]:
-        b = energy_bounds(disc.with_force(force), **kwargs)
-        return b.energy_lower, b.energy_upper
-
-    return run
 
 
 def u_bracket(disc: Discretization, delta: float, solve_bounds_at: Callable[[float], tuple[float, float]]) -> tuple[float, float]:
@@ -190,16 +169,6 @@ def choose_delta(force: float, gap: float, dU_dF: float) -> float:
     if not (gap > 0 and dU_dF > 0):
         return 0.5 * force
     return float(min(np.sqrt(2.0 * gap / dU_dF), 0.5 * force))
-
-
-def displacement_slope(disc: Discretization, method: str = "conic", step: float = 0.05, **options) -> float:
-    """``dU/dF`` of the discrete problem by a central difference ``±step F``
-    (used only to choose δ, so its accuracy does not matter for the bound)."""
-    from elastoplast.solvers.registry import solve
-
-    F = disc.force
-    U = [solve(disc.with_force(F * (1 + s)), method, **options).U for s in (-step, step)]
-    return float((U[1] - U[0]) / (2.0 * step * F))
 
 
 def lower_kind(lower) -> str:
@@ -321,20 +290,21 @@ def lower_bound(disc: Discretization, solution=None, options=None, *, progress: 
     """The certified lower bound ``-J <= Pi*`` on ``disc`` that ``options.kind`` chooses
     (:class:`~elastoplast.bounds.lower.LowerBoundOptions`, or a mapping of them;
     :func:`~elastoplast.bounds.lower.lower_bound_kind`): the optimum of the equilibrium
-    element (:func:`~elastoplast.bounds.lower.solve_lower_bound`; ``solution`` unused), or the
+    element (:func:`~elastoplast.bounds.equilibrium.bound.solve_lower_bound`; ``solution`` unused), or the
     local field built from ``solution``, a P1 solution of ``disc``
     (:func:`~elastoplast.bounds.local.local_lower_bound`; H > 0). Either is a
     :class:`~elastoplast.bounds.lower.LowerBound`; its ``solver`` is ``"local"`` for the local
     bound. ``progress(fraction, what)`` is called as the bound advances; ``upper``, the Pi of
     an upper bound on ``disc``, lets the local bound's descent stop once it gains little
     against the gap."""
-    import elastoplast.bounds.lower as global_bound
+    import elastoplast.bounds.equilibrium.bound as global_bound
+    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_kind
     from elastoplast.certificate.solution import Solution
 
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
-    options = global_bound.LowerBoundOptions.of(options, "lower_options")
+    options = LowerBoundOptions.of(options, "lower_options")
     check_progress(progress)
-    kind = global_bound.lower_bound_kind(disc, options)
+    kind = lower_bound_kind(disc, options)
     if kind == "global":
         if progress is not None:
             progress(0.0, f"lower bound: global program ({disc.n_elements:,} elements)")
@@ -353,193 +323,6 @@ def lower_bound(disc: Discretization, solution=None, options=None, *, progress: 
     if progress is not None:
         progress(1.0, "lower bound done")
     return lower
-
-
-def bracket_method(solution) -> str:
-    """The method of the P1 solves at ``F -/+ delta``: the solution's own when it is a
-    built-in method, else newton."""
-    from elastoplast.solvers.registry import METHODS
-
-    return solution.method if getattr(solution, "method", None) in METHODS else "newton"
-
-
-#: the KKT tolerance of the P1 solutions the local lower bound is built from: its contact
-#: layer needs the nodal balance to 1e-13 of the contact force (``contact_layer.LAYER_TOL``),
-#: about a tenth of the solution's KKT residual. Measured on the cylinder (576 triangles):
-#: newton at tol 1e-8 (residual 1.2e-10) and a warm start at 1e-10 refused, at 1e-12
-#: (3.7e-15) certified; conic polishes to 5.8e-15 at any tol, uzawa at 1e-12 reaches 7.7e-13.
-#: 1e-13 (the tightest tolerance a method takes) rather than 1e-12: the equilibration inherits
-#: the solution's nodal imbalance, which the ring repair must then remove, pass after pass.
-#: Default 3D problem at 98,304 tetrahedra, newton: 9 iterations either way (5.1 s / 4.8 s),
-#: KKT 7.4e-14 / 7.1e-15, element imbalance after the equilibration 2.6e-13 / 1.1e-14
-LOCAL_SOLVE_TOL = 1e-13
-
-
-def solve_at(disc: Discretization, force: float, method: str, start=None, tol: float | None = None, **options):
-    """The P1 solution of ``disc`` at ``force`` by ``method`` (solver options as for
-    :func:`~elastoplast.solvers.registry.solve`: an options object as ``options=`` or
-    keywords; ``tol``: at most this KKT tolerance), from ``start`` (a solution of ``disc``,
-    its contact forces scaled to ``force``) where the method takes a start
-    (:data:`~elastoplast.solvers.path.WARM_STARTS`); cold again if that does not converge."""
-    from dataclasses import replace
-
-    from elastoplast.solvers.path import WARM_STARTS, run_from
-    from elastoplast.solvers.registry import get_method, given_options
-
-    at = disc.with_force(force)
-    m = get_method(method)
-    values = dict(options)
-    opts = given_options(method, values.pop("options", None), values)
-    if tol is not None and opts.tol > tol:
-        opts = replace(opts, tol=tol)
-    opts = replace(opts, progress=False)  # within the caller's progress (the lower bounds')
-    if start is None or m.name not in WARM_STARTS:
-        return run_from(at, m, opts, None)
-    start = replace(start, contact_force=np.asarray(start.contact_force) * (force / disc.force))
-    sol = run_from(at, m, opts, start)
-    return sol if sol.converged else run_from(at, m, opts, None)
-
-
-def local_solution(disc: Discretization, solution, method: str | None = None, **options):
-    """``solution`` if it is accurate enough for the local lower bound (its KKT residual at
-    most :data:`LOCAL_SOLVE_TOL`), else the solution of ``disc`` solved again to that
-    tolerance from it (:func:`solve_at`; ``method``: :func:`bracket_method` by default)."""
-    if solution.converged and solution.kkt.worst <= LOCAL_SOLVE_TOL:
-        return solution
-    again = solve_at(disc, disc.force, method or bracket_method(solution), solution, LOCAL_SOLVE_TOL, **options)
-    return again if again.kkt.worst <= solution.kkt.worst or not solution.converged else solution
-
-
-def certified_bounds(disc: Discretization, solution=None, method: str = "conic", conservative: bool = True,
-                     lower_options=None, *, bracket: bool = True, progress: Progress | None = None,
-                     **options) -> BoundsReport:
-    """The energy bracket of ``disc`` and, with ``bracket``, the U bracket.
-
-    The lower bound is :func:`lower_bound`'s (``lower_options.kind``: the global program,
-    or the local field built from the P1 solution). U bracket (:func:`u_bracket`): only
-    the lower bounds are needed at ``F -/+ delta`` (``U >= (lo(F - delta) - hi(F)) /
-    delta``, ``U <= (hi(F) - lo(F + delta')) / delta'``): two more equilibrium-element
-    programs and no P1 solve, or, with the local bound, two more P1 solves (``method``,
-    warm-started from the solution at F, :func:`solve_at`) and their local bounds; delta
-    is :func:`choose_delta` with the secant ``U / F`` for ``dU/dF`` (delta only sets how
-    tight the bracket is, never whether it holds). The two inequalities hold for any
-    delta each: with H = 0 and F + delta above the mesh's static limit load, ``delta'``
-    is divided by 4 until the equilibrium element carries the load (at most
-    :data:`BRACKET_RETRIES` times; else ``U_upper = inf``, and the bracket is not called
-    certified). ``progress(fraction, what)``, when given, is called as the lower bounds
-    advance (the local bound reports within itself).
-    """
-    import time
-
-    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_kind
-    from elastoplast.solvers.registry import solve
-
-    expect(disc, Discretization, "disc", "ep.discretize(problem)")
-    check_hencky(disc, "the certified bounds")
-    check_not_axisymmetric(disc.problem, "the certified bounds")
-    if solution is not None:
-        check_solution(disc, solution, "solution", reads=("u",))
-    lower_options = LowerBoundOptions.of(lower_options, "lower_options")
-    check_progress(progress)
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    sol = solve(disc, method, **options) if solution is None else solution
-    upper = best_upper_bound(disc, sol, method, conservative, **options)
-    t1 = time.perf_counter()
-    local = lower_bound_kind(disc, lower_options) == "local"
-    part = scaled_progress(progress, 0.0, 1.0 / 3 if bracket else 1.0)
-    if local:  # the local field is built from a solution accurate to LOCAL_SOLVE_TOL
-        if part is not None and not (sol.converged and sol.kkt.worst <= LOCAL_SOLVE_TOL):
-            part(0.0, f"P1 solution to tol {LOCAL_SOLVE_TOL:g} for the local bound")
-        sol = local_solution(disc, sol, method, **options)
-    lower = lower_bound(disc, sol, lower_options, progress=part, upper=upper.Pi)
-    t2 = time.perf_counter()
-    timings.update(upper=t1 - t0, lower=t2 - t1)
-    b = combine(upper, lower)
-    if not bracket:
-        return BoundsReport(bounds=b, upper=upper, lower=lower, timings=timings)
-    U_lo, U_hi, delta, ok = u_bracket_of(disc, b, sol.U, lower_options, solution=sol, method=method,
-                                         progress=scaled_progress(progress, 1.0 / 3, 1.0), **options)
-    timings["bracket"] = time.perf_counter() - t2
-    return BoundsReport(bounds=b, upper=upper, lower=lower, U_lower=U_lo, U_upper=U_hi, delta=delta, timings=timings,
-                        bracket_certified=ok)
-
-
-def u_bracket_of(disc: Discretization, b: Bounds, U_h: float, lower_options=None, *, solution=None,
-                 method: str | None = None, progress: Progress | None = None,
-                 **options) -> tuple[float, float, tuple[float, float], bool]:
-    """``(U_lower, U_upper, (delta, delta'), certified)``: the U bracket of :func:`u_bracket` from
-    the energy bracket ``b`` at F and two more lower bounds (:func:`lower_bound`), at ``F -
-    delta`` and ``F + delta'``; see :func:`certified_bounds` for the choice of delta and the
-    shrinking of ``delta'``. The global program needs no P1 solve; the local bound
-    (``lower_options.kind``) needs ``solution``, the P1 solution at F, from which the
-    solutions at ``F -/+ delta`` are computed by ``method`` (default: the solution's own
-    where it is a built-in method, else newton) with the solver ``options``."""
-    from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_kind
-
-    lower_options = LowerBoundOptions.of(lower_options, "lower_options")
-    check_progress(progress)
-    F = disc.force
-    # the gap used to choose delta never counts as less than the round-off of the bounds
-    # themselves, so that (round-off of J) / delta stays far below the bracket's width
-    gap = max(b.energy_gap, GAP_FLOOR * abs(b.energy_upper))
-    delta = choose_delta(F, gap, U_h / F if U_h > 0 else 0.0)
-    local = lower_bound_kind(disc, lower_options) == "local"
-    if local:
-        if solution is None:
-            raise InputError("solution", "the U bracket with the local lower bound needs the P1 solution at F (the "
-                                         "start of the solves at F -/+ delta), or the global program (kind 'global')")
-        check_solution(disc, solution, "solution", reads=("u", "sigma", "contact_force"))
-        method = method or bracket_method(solution)
-
-    def bound_at(force: float, part: int):
-        """The lower bound at ``force`` (its share ``part`` of ``progress``)."""
-        report = scaled_progress(progress, part / 2, (part + 1) / 2)
-        if not local:
-            return lower_bound(disc.with_force(force), None, lower_options, progress=report)
-        if report is not None:
-            report(0.0, f"P1 solve at F = {force:.6g}")
-        sol = solve_at(disc, force, method, solution, LOCAL_SOLVE_TOL, **options)
-        at = disc.with_force(force)
-        try:  # the solution's own upper bound there measures the gap the descent's gains are compared with
-            return lower_bound(at, sol, lower_options, progress=report, upper=upper_bound(at, sol).Pi)
-        except InputError as exc:  # the local field could not be built from this solution: no bracket
-            raise InputError("mesh", f"the local lower bound at F = {force:.6g} (P1 solution: "
-                                     f"{sol.status.value}, KKT residual {sol.kkt.worst:.1e}): {exc}") from None
-
-    try:
-        minus = bound_at(F - delta, 0)
-    except InputError as exc:  # memory taken since the first program was checked: no bracket, said so
-        if exc.field != "mesh":
-            raise
-        warnings.warn(f"no U bracket: {exc.message}")
-        return math.nan, math.nan, (delta, delta), False
-    # with H = 0, F + delta may lie above the mesh's static limit load (no admissible
-    # field there): each side's secant holds for its own delta, so shrink that one
-    plus, delta_plus = None, delta
-    for _ in range(BRACKET_RETRIES):
-        try:
-            plus = bound_at(F + delta_plus, 1)
-            break
-        except InputError as exc:
-            if exc.field == "mesh":
-                warnings.warn(f"no U bracket: {exc.message}")
-                return math.nan, math.nan, (delta, delta_plus), False
-            if exc.field != "load.force":
-                raise
-            delta_plus /= 4.0
-    plus_lower = plus.lower if plus is not None else -math.inf
-    with np.errstate(all="ignore"):
-        U_lo, U_hi = u_secants(minus.lower, b.energy_upper, plus_lower, delta, delta_plus)
-    # the secants hold for valid bounds, so they are in order; their round-off is the bounds' own over delta
-    energies = max(abs(minus.lower), abs(b.energy_upper), abs(plus_lower))
-    ordered = math.isfinite(U_lo) and math.isfinite(U_hi) and (
-        U_lo <= U_hi + GAP_FLOOR * energies * (1.0 / delta + 1.0 / delta_plus))
-    if plus is not None and not ordered:
-        warnings.warn(f"the U bracket is inverted or not finite (U_lower {U_lo:.6g} > U_upper {U_hi:.6g}): not "
-                      "certified")
-    certified = minus.certified and plus is not None and plus.certified and ordered
-    return U_lo, U_hi, (delta, delta_plus), certified
 
 
 def element_indicators(disc: Discretization, bounds: Bounds) -> np.ndarray:

@@ -27,7 +27,7 @@ import scipy.sparse.linalg as spla
 
 from elastoplast.bounds.equilibrate import Faces
 from elastoplast.bounds.lift import MANDEL_PAIRS, mandel_to_tensor
-from elastoplast.bounds.repair import project_affine
+from elastoplast.linalg.direct import project_affine
 from elastoplast.bounds.static import mass_matrix
 from elastoplast.errors import InputError
 from elastoplast.fem.discretize import Discretization

@@ -396,22 +396,6 @@ def smallest_upper_bound(disc: Discretization, solution, conservative_solution=N
     return min(candidates, key=lambda c: (not c.certified, c.Pi))
 
 
-def best_upper_bound(disc: Discretization, solution, method: str = "conic", conservative: bool = True,
-                     **options) -> UpperBound:
-    """:func:`smallest_upper_bound` of ``solution`` and, with ``conservative``, of the
-    solution of :func:`conservative_discretization` solved by ``method`` (left out when
-    that solve does not converge, or for a flat obstacle, which needs no allowance)."""
-    from elastoplast.solvers.registry import solve
-
-    other_sol = None
-    safe = conservative_discretization(disc) if conservative else disc
-    if conservative and not np.array_equal(safe.psi, disc.psi):  # a flat obstacle needs no allowance
-        other_sol = solve(safe, method, **options)
-        if not other_sol.converged:  # the problem's own solution's bound stands
-            other_sol = None
-    return smallest_upper_bound(disc, solution, other_sol)
-
-
 # ----------------------------------------------------------------------------
 # the U bracket
 # ----------------------------------------------------------------------------
@@ -420,11 +404,5 @@ def best_upper_bound(disc: Discretization, solution, method: str = "conic", cons
 # ----------------------------------------------------------------------------
 # everything the bounds command reports
 # ----------------------------------------------------------------------------
-
-
-#: the smallest energy gap, relative to the energy, used to choose the U bracket's delta
-GAP_FLOOR = 1e-10
-#: times the U bracket's delta above F is divided by 4 when the load there has no admissible field
-BRACKET_RETRIES = 4
 
 

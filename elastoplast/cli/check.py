@@ -478,7 +478,8 @@ def _bounds(disc: Discretization, sol: Solution):
     field instead of a solve's: the field with its fixed components at zero (the
     ``dirichlet`` residual judges whether the answer had them so; the bound is that of
     the admissible field it implies)."""
-    from elastoplast.bounds.bracket import BoundsReport, combine, lower_bound, u_bracket_of
+    from elastoplast.bounds.bracket import BoundsReport, combine, lower_bound
+    from elastoplast.references.certified import u_bracket_of
     from elastoplast.bounds.upper import upper_bound
 
     t0 = time.perf_counter()

@@ -151,7 +151,8 @@ def _solve(args: argparse.Namespace) -> int:
 
 
 def _bounds(args: argparse.Namespace) -> int:
-    from elastoplast.bounds.bracket import certified_bounds, check_lower_bound_fits, gap_fields, lower_kind
+    from elastoplast.references.certified import certified_bounds
+    from elastoplast.bounds.bracket import check_lower_bound_fits, gap_fields, lower_kind
     from elastoplast.bounds.lower import SEQUENCE_MEMORY_FACTOR, LowerBoundOptions
     from elastoplast.certificate.solution import Status
     from elastoplast.cli.results import write_results
@@ -225,7 +226,7 @@ def lower_bound_bar(quiet: bool, kind: str):
 
 
 def _limit(args: argparse.Namespace) -> int:
-    from elastoplast.bounds.limit import LimitOptions, limit_load
+    from elastoplast.bounds.limit_load import LimitOptions, limit_load
     from elastoplast.bounds.lower import LowerBoundOptions
     from elastoplast.io.output import json_text, staged_output
 

@@ -7,7 +7,7 @@ ones not fixed by a Dirichlet condition and every operator acts on those.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -31,7 +31,7 @@ from elastoplast.fem.axisymmetry import axis_nodes, check_meridian_mesh, ring_co
 from elastoplast.fem.material import Material, Prestate, n_components
 from elastoplast.mesh.base import Mesh
 from elastoplast.mesh.topology import FacetTopology, boundary_facets, facet_topology
-from elastoplast.problem.definition import Problem
+from elastoplast.problem.definition import Boundary, Problem
 from elastoplast.mesh.base import read_only
 
 
@@ -68,6 +68,16 @@ class Discretization:
     contact_area: np.ndarray
     state: Prestate | None = None
     hoop: np.ndarray | None = None
+    #: the obstacle itself at the contact nodes when ``psi`` is a step's gap (:meth:`step`)
+    obstacle_psi: np.ndarray | None = None
+    #: the data derived from the mesh, its facet groups and the element geometry alone,
+    #: shared by every Discretization with the same ones (:meth:`with_force`, :meth:`step`)
+    shared: "SharedOperators | None" = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.shared is None or not self.shared.serves(self):
+            object.__setattr__(self, "shared", SharedOperators(self.mesh, self.problem.boundary, self.grads,
+                                                               self.volumes, self.free, self.hoop))
 
     @property
     def mesh(self) -> Mesh:
@@ -107,10 +117,10 @@ class Discretization:
     def force(self) -> float:
         return self.problem.force
 
-    @cached_property
+    @property
     def facet_topology(self) -> FacetTopology:
         """The mesh's facets classified by the problem's facet groups (:func:`facet_topology`), built once."""
-        return facet_topology(self.mesh, self.problem.boundary)
+        return self.shared.facet_topology
 
     @property
     def length_scale(self) -> float:
@@ -126,16 +136,16 @@ class Discretization:
         """``r = sum_T |T| B_T^T sigma_T`` on the free dofs."""
         return self.B.T @ (sigma * self.volumes[:, None]).ravel()
 
-    @cached_property
+    @property
     def layout(self) -> Layout:
         """The block pattern of the stiffness-type matrices over every dof
         (:func:`~elastoplast.fem.assembly.element_layout`), built once."""
-        return element_layout(self.mesh, self.grads, self.volumes, self.hoop)
+        return self.shared.layout
 
-    @cached_property
+    @property
     def free_view(self) -> ScalarView:
         """Their CSR pattern on the free dofs (:func:`~elastoplast.fem.assembly.scalar_view`), built once."""
-        return scalar_view(self.layout, self.free)
+        return self.shared.free_view
 
     def weighted_gram(self, M: np.ndarray) -> sp.csr_matrix:
         """``sum_T |T| B_T^T M_T B_T`` on the free dofs, for one ``M (k, k)`` shared by
@@ -164,27 +174,50 @@ class Discretization:
         operators, the state, and the obstacle shifted by the last vertical
         displacements (``psi + N u``), so that the contact conditions on the
         increment are those of the total displacement (docs/evolution.md)."""
-        from dataclasses import replace
+        return replace(self.with_force(force), state=state, psi=read_only(self.base_psi + self.N @ u_free),
+                       obstacle_psi=self.base_psi)
 
-        out = replace(self.with_force(force), state=state, psi=read_only(self.base_psi + self.N @ u_free))
-        out.__dict__["base_psi"] = self.base_psi
-        return out
-
-    @cached_property
+    @property
     def base_psi(self) -> np.ndarray:
         """The obstacle itself at the contact nodes (``psi`` of the problem before any step)."""
-        return self.psi
+        return self.psi if self.obstacle_psi is None else self.obstacle_psi
 
     def with_force(self, force: float) -> "Discretization":
-        """The same operators for another load (nothing is rebuilt); ``force`` is
-        checked as the problem file's ``load.force`` (:meth:`Problem.with_force`)."""
-        from dataclasses import replace
+        """The same operators for another load (nothing is rebuilt: the mesh, its facet
+        groups and the element geometry are the same, so :attr:`shared` is); ``force``
+        is checked as the problem file's ``load.force`` (:meth:`Problem.with_force`)."""
+        return replace(self, problem=self.problem.with_force(force))
 
-        out = replace(self, problem=self.problem.with_force(force))
-        for name in ("facet_topology", "base_psi", "layout", "free_view"):  # same mesh, groups and obstacle
-            if name in self.__dict__:
-                out.__dict__[name] = self.__dict__[name]
-        return out
+
+class SharedOperators:
+    """What a :class:`Discretization` derives from its mesh, facet groups, element
+    geometry (with an axisymmetric model's hoop rows) and free dofs alone, each built on
+    first use. One instance serves every
+    Discretization made from the same objects (:meth:`serves` compares them by
+    identity), so a new load or a path's step reuses them and any other change of
+    those inputs gets a new instance: nothing derived is ever carried by hand."""
+
+    def __init__(self, mesh: Mesh, boundary: Boundary, grads: np.ndarray, volumes: np.ndarray, free: np.ndarray,
+                 hoop: np.ndarray | None):
+        self.inputs = (mesh, boundary, grads, volumes, free, hoop)
+
+    def serves(self, disc: Discretization) -> bool:
+        mine = (disc.mesh, disc.problem.boundary, disc.grads, disc.volumes, disc.free, disc.hoop)
+        return all(a is b for a, b in zip(self.inputs, mine))
+
+    @cached_property
+    def facet_topology(self) -> FacetTopology:
+        mesh, boundary = self.inputs[:2]
+        return facet_topology(mesh, boundary)
+
+    @cached_property
+    def layout(self) -> Layout:
+        mesh, _, grads, volumes, _, hoop = self.inputs
+        return element_layout(mesh, grads, volumes, hoop)
+
+    @cached_property
+    def free_view(self) -> ScalarView:
+        return scalar_view(self.layout, self.inputs[4])
 
 
 def check_hencky(disc: Discretization, what: str) -> None:
@@ -484,7 +517,6 @@ def nondimensionalize(disc: Discretization) -> tuple[Discretization, Units]:
     from swamping the solvers' arithmetic. The certificate, on the original
     problem, would show any penetration the cap allowed.
     """
-    from dataclasses import replace
 
     m, d = disc.material, disc.measure_dim
     units = reference_units(disc)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from elastoplast.errors import InputError
-from elastoplast.mesh.topology import boundary_facets, unique_rows
+from elastoplast.mesh.topology import boundary_facets, element_edges, unique_rows
 
 CROSSED_TOLERANCE = 1e-6  # |sin| of the angle between the two halves of a crossing line
 
@@ -45,7 +45,8 @@ def crossed_centres(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     candidate = (degree == 4) & ~on_boundary
     if not np.any(candidate):
         return candidate
-    edges = np.concatenate([cells[:, [a, b]] for a in range(3) for b in range(3) if a != b], axis=0)
+    undirected, _ = element_edges(cells, n)
+    edges = np.concatenate([undirected, undirected[:, ::-1]], axis=0)  # each edge from either end
     edges = edges[candidate[edges[:, 0]]]
     edges, _, _ = unique_rows(edges, n)  # sorted by centre, then neighbour
     per_centre = np.bincount(edges[:, 0], minlength=n)

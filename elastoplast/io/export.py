@@ -78,7 +78,6 @@ import scipy.sparse as sp
 from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import PSI_CAP, Discretization, check_hencky, nondimensionalize
-from elastoplast.fem.material import SQRT_3_2
 from elastoplast.fem.locking import BEARING_FACTOR, SMALL_STRAIN_LIMIT
 from elastoplast.io.cbf import CBFProgram, cbf_text, escape_comment
 from elastoplast.io.export_files import (  # noqa: F401  (read_sidecar, load_npz: part of this module's API)
@@ -90,7 +89,7 @@ from elastoplast.io.export_files import (  # noqa: F401  (read_sidecar, load_npz
     write_pair,
 )
 from elastoplast.io.store import resolve
-from elastoplast.solvers.conic import deviatoric_basis, element_weights
+from elastoplast.fem.stress_form import deviatoric_basis, element_weights, equilibrium_rows, force_row, yield_rows
 from elastoplast.version import __version__
 from elastoplast.fem.locking import overload
 
@@ -206,20 +205,10 @@ def stress_form(disc: Discretization, energy: str = "cone") -> Built:
     if energy == "cone":
         c[t0] = s["energy"] * s["energy_cone_constant"]
     rows = _Rows(n_cols)
-    BtW = (nd.B.T @ sp.diags(np.repeat(w, k))).tocoo()
-    Nt = nd.N.T.tocoo()
-    rows.add("equilibrium", nf, np.concatenate([BtW.row, Nt.row]), np.concatenate([tau0 + BtW.col, lam0 + Nt.col]),
-             np.concatenate([BtW.data, -Nt.data]), cones=[("L=", nf + 1)])
-    rows.add("force", 1, np.zeros(nc), lam0 + np.arange(nc), np.ones(nc), [0], [-nd.force])
-    dev = _kron_blocks(SQRT_3_2 * deviatoric_basis(k).T, n)  # rows T (k-1) + i, columns T k + j
-    yr = (dev.row // (k - 1)) * k + 1 + dev.row % (k - 1)
-    yr, yc, yv = [yr], [tau0 + dev.col], [dev.data]
-    if has_xi:
-        yr.append(np.arange(n) * k)
-        yc.append(xi0 + np.arange(n))
-        yv.append(np.ones(n))
-    rows.add("yield", n * k, np.concatenate(yr), np.concatenate(yc), np.concatenate(yv), np.arange(n) * k,
-             w * m.yield_stress, [("Q", k)] * n)
+    for name, g, cones in (("equilibrium", equilibrium_rows(nd, tau0, lam0), [("L=", nf + 1)]),  # with the force row
+                           ("force", force_row(nd, lam0), []),
+                           ("yield", yield_rows(k, w, m.yield_stress, tau0, xi0 if has_xi else None), [("Q", k)] * n)):
+        rows.add(name, g.n_rows, g.row, g.col, g.val, g.h_rows, g.h_vals, cones)  # CBF's A x + b is G x + h
 
     LA = np.linalg.cholesky(m.compliance(nd.dim))  # A = LA LA^T, tau A tau = |LA^T tau|^2
     blocks = [_column_block(_kron_blocks(LA.T, n), tau0, n_cols)]

@@ -43,7 +43,8 @@ from elastoplast.fem.material import Material, von_mises
 from elastoplast.io.export import answer_from_solution, clarabel_form, stress_form
 from elastoplast.options import MAX_ITER_CEILING, SolverOptions, option
 from elastoplast.solvers.backends import solve_clarabel, solve_scs
-from elastoplast.solvers.conic import element_weights, stress_form_data
+from elastoplast.fem.stress_form import element_weights
+from elastoplast.solvers.conic import stress_form_data
 from elastoplast.solvers.contact import osqp_polish_key
 from elastoplast.solvers.loop import check_inputs, within_tolerance
 from elastoplast.solvers.registry import Method

@@ -187,3 +187,41 @@ def pardiso_available() -> bool:
     except Exception:  # not installed, or its internals moved
         return False
     return True
+
+
+#: regularisation of the row-normalised Gram matrix A A^T (diagonal 1): redundant
+#: traction rows make it singular; iterative refinement removes the regularisation's bias
+GRAM_REGULARISATION = 1e-10
+
+
+def project_affine(A: sp.csc_matrix, b: np.ndarray, x: np.ndarray, max_refine: int = 10) -> tuple[np.ndarray, float]:
+    """Minimum-norm correction of x onto ``A x = b`` (b in the range of A).
+
+    Rows are normalised, ``K = A A^T + eps I`` is factored once and refined:
+    ``x <- x + A^T K^{-1} (b - A x)``. Every correction lies in the range of A^T,
+    so the limit is the minimum-norm correction even when rows are redundant
+    (K singular without eps); each sweep shrinks the residual by
+    ``eps / (sigma^2 + eps)`` for every nonzero singular value sigma of A.
+    Returns ``(x, max |b - A x| / max_i sum_j |A_ij x_j|)`` after the last sweep. A
+    solver's answer out of range (overflowing, not finite) gives a residual that is not
+    finite, with no floating-point warning: the static certificate refuses it and says so.
+    """
+    A = sp.csr_matrix(A)
+    norms = np.sqrt(np.asarray(A.multiply(A).sum(axis=1)).ravel())
+    norms[norms == 0] = 1.0
+    As = sp.diags(1.0 / norms) @ A
+    bs = b / norms
+    solve = factorize_spd((As @ As.T + GRAM_REGULARISATION * sp.eye(A.shape[0])).tocsc())
+    x = x.copy()
+    last = np.inf
+    with np.errstate(all="ignore"):
+        for _ in range(max_refine):
+            r = bs - As @ x
+            size = np.abs(r).max(initial=0.0)
+            if not size < 0.5 * last:  # no progress, or not finite
+                break
+            x += As.T @ solve(r)
+            last = size
+        scale = max((abs(As) @ np.abs(x)).max(initial=0.0), np.finfo(float).tiny)
+        residual = float(np.abs(bs - As @ x).max(initial=0.0) / scale)
+    return x, residual if np.isfinite(residual) else np.inf

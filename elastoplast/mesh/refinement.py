@@ -79,6 +79,7 @@ from elastoplast.limits import check_mesh_size
 from elastoplast.errors import InputError, expect
 from elastoplast.mesh.base import Mesh
 from elastoplast.mesh.topology import (
+    element_edges,
     facet_measure,
     facet_normals,
     keys_fit,
@@ -171,7 +172,8 @@ def initial_state(mesh: Mesh) -> BisectionState:
     n = cells.shape[0]
     le = local_edges(d)
     p, q = cells[:, le[:, 0]], cells[:, le[:, 1]]  # (n, n_edges)
-    keys = pair_keys(p, q, EDGE_BASE)
+    # the edge numbers order the edges as their (smaller node, larger node) pairs do
+    _, keys = element_edges(cells, mesh.n_nodes)
     # the same bits for an edge in every simplex: always (larger node - smaller node)
     diff = mesh.points[np.maximum(p, q)] - mesh.points[np.minimum(p, q)]
     length2 = np.einsum("...i,...i->...", diff, diff)

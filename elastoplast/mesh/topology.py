@@ -104,6 +104,19 @@ def local_edges(dim: int) -> np.ndarray:
     return np.stack(np.triu_indices(dim + 1, 1), axis=1)
 
 
+def element_edges(cells: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh's edges, each once: ``(edges (n_edges, 2), element_edge (n_el, n_local))``.
+    Each edge is its ``(lo, hi)``-sorted vertex pair, the edges in lexicographic order of
+    those pairs (a stable numbering: the same mesh always gives the same one), and
+    ``element_edge[e, j]`` is the edge of element ``e``'s local edge ``j`` of
+    :func:`local_edges`. The one edge table of every user (the P2 velocities of the
+    limit load, the crossed-pattern check, bisection's labelling)."""
+    cells = np.asarray(cells, dtype=np.int64)
+    pairs = local_edges(cells.shape[1] - 1)
+    edges, element_edge, _ = unique_rows(np.sort(cells[:, pairs], axis=2).reshape(-1, 2), n_nodes)
+    return edges, element_edge.reshape(cells.shape[0], len(pairs))
+
+
 def element_facets(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """All facets of all elements, each row sorted: ``(facets (n_el*(d+1), d),
     element of each, local index of the vertex each is opposite to)``; facet ``j`` of

@@ -16,6 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from elastoplast.certificate.solution import Status
+from elastoplast.fem.stress_form import AffineRows
 
 CLARABEL_STATUS = {
     "Solved": Status.CONVERGED,
@@ -66,6 +67,46 @@ class ConicAnswer:
     @property
     def label(self) -> str:
         return f"{'SCS' if self.solver == 'scs' else 'Clarabel'}: {self.raw}"
+
+
+def clarabel_rows(groups: list[AffineRows], n_cols: int) -> tuple[list[sp.csc_matrix], list[np.ndarray], list]:
+    """Clarabel's ``s = b - A x`` in its cones from the neutral row groups of
+    :mod:`elastoplast.fem.stress_form` (``g = G x + h`` in a cone): ``(blocks, rhs, cones)``,
+    one block of A and of b per run of consecutive zero-cone groups and per other group.
+    A zero cone is a subspace and is taken as ``s = -g`` (``A = G``, ``b = -h``: the
+    multipliers of equilibrium are then the displacements, of the force balance U);
+    every other cone as ``s = g`` (``A = -G``, ``b = h``)."""
+    import clarabel
+
+    blocks, rhs, cones, run = [], [], [], []
+
+    def close_run() -> None:
+        if run:
+            offsets = np.cumsum([0] + [g.n_rows for g in run])
+            rows = np.concatenate([o + g.row for o, g in zip(offsets, run)])
+            cols = np.concatenate([g.col for g in run])
+            blocks.append(sp.csc_matrix((np.concatenate([g.val for g in run]), (rows, cols)), shape=(offsets[-1], n_cols)))
+            b = np.zeros(offsets[-1])
+            for o, g in zip(offsets, run):
+                b[o + g.h_rows] = -g.h_vals
+            rhs.append(b)
+            cones.append(clarabel.ZeroConeT(int(offsets[-1])))
+            run.clear()
+
+    for g in groups:
+        if g.cone == "zero":
+            run.append(g)
+            continue
+        close_run()
+        # 0 - G: -G, its explicit zeros (blocks kron stores densely) kept +0.0
+        blocks.append(sp.csc_matrix((0.0 - g.val, (g.row, g.col)), shape=(g.n_rows, n_cols)))
+        rhs.append(g.h())
+        if g.cone == "nonnegative":
+            cones.append(clarabel.NonnegativeConeT(g.n_rows))
+        else:
+            cones += [clarabel.SecondOrderConeT(g.cone_size)] * (g.n_rows // g.cone_size)
+    close_run()
+    return blocks, rhs, cones
 
 
 def clarabel_settings(options, linear_solver: str = "qdldl"):

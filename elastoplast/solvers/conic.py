@@ -25,8 +25,16 @@ import scipy.sparse as sp
 from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.fem.discretize import Discretization, Units, nondimensionalize
 from elastoplast.fem.material import SQRT_3_2, return_mapping, von_mises
+from elastoplast.fem.stress_form import (
+    contact_sign_rows,
+    deviatoric_basis,
+    element_weights,
+    equilibrium_rows,
+    force_row,
+    yield_rows,
+)
 from elastoplast.options import SolverOptions, option
-from elastoplast.solvers.backends import ConicAnswer, clarabel_settings, solve_clarabel
+from elastoplast.solvers.backends import ConicAnswer, clarabel_rows, clarabel_settings, solve_clarabel
 from elastoplast.solvers.loop import check_inputs, within_tolerance
 from elastoplast.solvers.polish import newton_polish
 from elastoplast.certificate.solution import within_small_strains
@@ -57,66 +65,9 @@ class ConicOptions(SolverOptions):
     polish: bool = option(True, bool, "finish with active-set Newton steps (elastoplast.solvers.polish)")
 
 
-def element_weights(disc: Discretization) -> np.ndarray:
-    """``w_T`` of the energy-normalised unknowns ``tau_hat_T = w_T tau_T``: ``sqrt|T|``
-    relative to the mean element, so the unknowns keep the size of the stresses."""
-    return np.sqrt(disc.volumes / disc.volumes.mean())
-
-
-def deviatoric_basis(k: int) -> np.ndarray:
-    """Orthonormal basis ``Q (k, k-1)`` of trace-free Mandel vectors: ``|dev t| = |Q^T t|``."""
-    Q = np.zeros((k, k - 1))
-    Q[:3, 0] = np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0)
-    Q[:3, 1] = np.array([1.0, 1.0, -2.0]) / np.sqrt(6.0)
-    Q[3:, 2:] = np.eye(k - 3)
-    return Q
-
-
 # ----------------------------------------------------------------------------
 # conic pieces, each a few lines
 # ----------------------------------------------------------------------------
-
-
-def yield_cone_rows(disc: Discretization, tau_col: int, xi_col: int | None, n_cols: int):
-    """Rows of ``s = b - A x`` in the cone ``sqrt(3/2)|dev tau_T| <= sigma_y + xi_T``.
-
-    In energy-normalised variables (``tau_hat = sqrt|T| tau``, see
-    :func:`stress_form_data`) it reads ``s_T = (sqrt|T| sigma_y + xi_hat_T,
-    sqrt(3/2) Q^T tau_hat_T)``: one SOC of size k per element.
-    """
-    n_el, k = disc.n_elements, disc.k
-    Q = deviatoric_basis(k)
-    coo = sp.kron(sp.eye(n_el), sp.csr_matrix(-SQRT_3_2 * Q.T)).tocoo()  # (n_el (k-1), n_el k)
-    rows_dev = (np.arange(n_el)[:, None] * k + 1 + np.arange(k - 1)).ravel()
-    r, c, v = [rows_dev[coo.row]], [tau_col + coo.col], [coo.data]
-    if xi_col is not None:
-        r.append(np.arange(n_el) * k)
-        c.append(xi_col + np.arange(n_el))
-        v.append(-np.ones(n_el))
-    A = sp.csc_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))), shape=(n_el * k, n_cols))
-    b = np.zeros(n_el * k)
-    b[::k] = element_weights(disc) * disc.material.yield_stress
-    return A, b
-
-
-def contact_sign_rows(n_contact: int, lam_col: int, n_cols: int):
-    """Rows ``s = -(-lam) = lam`` in the nonnegative cone: ``lam >= 0``."""
-    A = sp.csc_matrix((-np.ones(n_contact), (np.arange(n_contact), lam_col + np.arange(n_contact))), shape=(n_contact, n_cols))
-    return A, np.zeros(n_contact)
-
-
-def equilibrium_rows(disc: Discretization, tau_col: int, lam_col: int, n_cols: int):
-    """Zero-cone rows: ``sum_T sqrt|T| B_T^T tau_hat_T - N^T lam = 0`` and ``sum lam = F``."""
-    BtV = (disc.B.T @ sp.diags(np.repeat(element_weights(disc), disc.k))).tocoo()
-    Nt = disc.N.T.tocoo()
-    n_free, n_c = disc.n_free, disc.n_contact
-    rows = np.concatenate([BtV.row, Nt.row, np.full(n_c, n_free)])
-    cols = np.concatenate([tau_col + BtV.col, lam_col + Nt.col, lam_col + np.arange(n_c)])
-    vals = np.concatenate([BtV.data, -Nt.data, np.ones(n_c)])
-    A = sp.csc_matrix((vals, (rows, cols)), shape=(n_free + 1, n_cols))
-    b = np.zeros(n_free + 1)
-    b[-1] = disc.force
-    return A, b
 
 
 def stress_form_data(disc: Discretization, with_yield: bool = True):
@@ -129,8 +80,6 @@ def stress_form_data(disc: Discretization, with_yield: bool = True):
     regularisation swamped the smallest elements (measured: constitutive
     residual 5e-3 on a 2D mesh with volumes down to 1e-10 of the body's).
     """
-    import clarabel
-
     n, k, nc = disc.n_elements, disc.k, disc.n_contact
     m = disc.material
     has_xi = with_yield and m.hardening > 0
@@ -152,16 +101,14 @@ def stress_form_data(disc: Discretization, with_yield: bool = True):
         if has_xi:
             q[xi_col:lam_col] = -w * disc.state.xi / m.hardening
 
-    A_eq, b_eq = equilibrium_rows(disc, tau_col, lam_col, n_cols)
-    A_nn, b_nn = contact_sign_rows(nc, lam_col, n_cols)
-    A = sp.vstack([A_eq, A_nn], format="csc")
-    b = np.concatenate([b_eq, b_nn])
-    cones = [clarabel.ZeroConeT(b_eq.size), clarabel.NonnegativeConeT(nc)]
+    groups = [equilibrium_rows(disc, tau_col, lam_col), force_row(disc, lam_col), contact_sign_rows(nc, lam_col)]
     if with_yield:
-        A_soc, b_soc = yield_cone_rows(disc, tau_col, xi_col if has_xi else None, n_cols)
-        A = sp.vstack([A, A_soc], format="csc")
-        b = np.concatenate([b, b_soc])
-        cones += [clarabel.SecondOrderConeT(k)] * n
+        groups.append(yield_rows(k, element_weights(disc), m.yield_stress, tau_col, xi_col if has_xi else None))
+    blocks, rhs, cones = clarabel_rows(groups, n_cols)
+    A = sp.vstack(blocks[:2], format="csc")
+    if with_yield:
+        A = sp.vstack([A, blocks[2]], format="csc")
+    b = np.concatenate(rhs)
     layout = dict(tau=slice(0, n * k), xi=slice(xi_col, lam_col) if has_xi else None, lam=slice(lam_col, n_cols),
                   eq=slice(0, disc.n_free), force=disc.n_free)
     return P, q, A, b, cones, layout

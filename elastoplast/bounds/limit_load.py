@@ -47,12 +47,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from elastoplast.bounds.lower import (
-    LimitLowerBound,
-    LowerBoundOptions,
-    check_lower_bound_size,
-    static_limit_load,
-)
+from elastoplast.bounds.lower import LimitLowerBound, LowerBoundOptions, check_lower_bound_size
+from elastoplast.bounds.equilibrium.bound import static_limit_load
 from elastoplast.certificate.solution import Status
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.axisymmetry import check_not_axisymmetric
@@ -60,7 +56,7 @@ from elastoplast.fem.discretize import Discretization, check_hencky, free_strain
 from elastoplast.fem.assembly import element_geometry
 from elastoplast.fem.material import identity_vector
 from elastoplast.mesh.base import Mesh
-from elastoplast.mesh.topology import local_edges, locate_rows, unique_rows
+from elastoplast.mesh.topology import element_edges, local_edges, locate_rows
 from elastoplast.options import SolverOptions, option
 from elastoplast.solvers.backends import clarabel_settings, solve_clarabel
 
@@ -186,8 +182,8 @@ def velocity_space(disc: Discretization, order: int) -> VelocitySpace:
         raise InputError("limit.order", f"must be 1 or 2, got {order!r}")
     nv, cells = mesh.n_nodes, mesh.cells
     pairs = local_edges(d)
-    edges, local_edge, _ = unique_rows(np.sort(cells[:, pairs], axis=2).reshape(-1, 2), nv)
-    p2_cells = np.concatenate([cells, nv + local_edge.reshape(cells.shape[0], len(pairs))], axis=1)
+    edges, element_edge = element_edges(cells, nv)
+    p2_cells = np.concatenate([cells, nv + element_edge], axis=1)
 
     # gradients of the P2 basis at vertex a: vertex i (4 delta_ia - 1) grad l_i,
     # edge (i, j) 4 (delta_ia grad l_j + delta_ja grad l_i)

@@ -7,7 +7,7 @@ boundary conditions, the force balance, and one yield cone per element vertex.""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -15,7 +15,8 @@ import scipy.sparse as sp
 from elastoplast.bounds.static import mass_matrix, traction_operator
 from elastoplast.fem.discretize import Discretization
 from elastoplast.mesh.topology import FacetTopology
-from elastoplast.solvers.conic import yield_cone_rows
+from elastoplast.fem.stress_form import contact_sign_rows, volume_weights, yield_rows
+from elastoplast.solvers.backends import clarabel_rows
 
 
 @dataclass(frozen=True)
@@ -119,12 +120,10 @@ def lower_bound_program(nd: Discretization, topo: FacetTopology, grads: np.ndarr
     eta_hat_b / H) + sum q lam`` (the exact J: ``|T| / w_T^2 = 1`` per element).
     Limit mode: minimise ``-F_hat`` with eta = 0 and no energy. Cones: ``lam_hat >= 0``,
     and ``sqrt(3/2)|dev tau_hat_a| <= w_T sigma_y + eta_hat_a`` at each element vertex
-    (the per-element cone of (S), :func:`~elastoplast.solvers.conic.yield_cone_rows`, applied
-    to a copy of ``nd`` whose 'elements' are the element vertices).
+    (the per-element cone of (S), :func:`~elastoplast.fem.stress_form.yield_rows`, one per
+    element vertex, each with its element's weight ``w_T``).
     """
     import clarabel
-
-    from elastoplast.solvers.conic import contact_sign_rows
 
     d, k, n, m = nd.dim, nd.k, nd.n_elements, nd.material
     nv = n * (d + 1)
@@ -138,16 +137,14 @@ def lower_bound_program(nd: Discretization, topo: FacetTopology, grads: np.ndarr
     lam_w = np.repeat(w[topo.boundary_elements[topo.contact_index]], d)
 
     A_eq, b_eq = equality_rows(nd, topo, grads, n_cols, lam_col, force_col)
-    A_nn, b_nn = contact_sign_rows(n_lam, lam_col, n_cols)
-    blocks = [A_eq, A_nn]
-    rhs = [b_eq, b_nn]
-    cones = [clarabel.ZeroConeT(b_eq.size), clarabel.NonnegativeConeT(n_lam)]
-    if with_yield:
-        vertex_disc = replace(nd, volumes=np.repeat(nd.volumes, d + 1))
-        A_soc, b_soc = yield_cone_rows(vertex_disc, 0, eta_col if has_eta else None, n_cols)
-        blocks.append(A_soc)
-        rhs.append(b_soc)
-        cones += [clarabel.SecondOrderConeT(k)] * nv
+    groups = [contact_sign_rows(n_lam, lam_col)]
+    if with_yield:  # the yield cones of (S) at the element vertices: w_T at each vertex of T
+        vertex_weights = volume_weights(np.repeat(nd.volumes, d + 1))  # the mean over vertices, as always
+        groups.append(yield_rows(k, vertex_weights, m.yield_stress, 0, eta_col if has_eta else None))
+    more, more_rhs, more_cones = clarabel_rows(groups, n_cols)
+    blocks = [A_eq, *more]
+    rhs = [b_eq, *more_rhs]
+    cones = [clarabel.ZeroConeT(b_eq.size), *more_cones]
 
     M = mass_matrix(d)
     q = np.zeros(n_cols)

@@ -1,4 +1,4 @@
-"""Ring sweeps of the local lower bound (elastoplast/bounds/rings.py, edges.py).
+"""Ring sweeps of the local lower bound (elastoplast/bounds/local/rings.py, sweeps.py).
 
 Where the numbers come from:
 * the face bases are closed forms: ``R K = 0`` and ``R G = I`` hold to round-off (checked
@@ -12,7 +12,7 @@ Where the numbers come from:
   target (gap at most 1.5 times the global program's) on the default 3D problem at 1,536
   tetrahedra (measured 1.33 with 16 sweeps alone, 1.27 with 32, 1.00 with 8 sweeps and 300
   descent steps over all rings, benchmarks/bounds/local.md);
-* the compiled ring step (``ring_kernel``) is the batched numpy step (``edges.ring_step``)
+* the compiled ring step (``kernel``) is the batched numpy step (``sweeps.ring_step``)
   written again as loops: from the same tractions both give the same new tractions and
   gains to round-off (a change to one side's curvature terms fails it);
 * moving the pressure keeps ``int lam = F`` (the rings are self-equilibrated, so their
@@ -28,12 +28,12 @@ import pytest
 from conftest import build, cylinder_dict, sphere_quarter_dict
 
 import elastoplast as ep
-from elastoplast.bounds.edges import ring_corrections, ring_face_bases
-from elastoplast.bounds.equilibrate import element_tractions, mesh_faces
-from elastoplast.bounds.lift import element_maps
-from elastoplast.bounds.local import local_lower_bound
-from elastoplast.bounds.rings import face_bases, mesh_rings, resultant_rows, ring_batches
-from elastoplast.bounds.sweeps import element_imbalance
+from elastoplast.bounds.local.sweeps import ring_corrections, ring_face_bases
+from elastoplast.bounds.local.equilibrate import element_tractions, mesh_faces
+from elastoplast.bounds.local.lift import element_maps
+from elastoplast.bounds.local.construction import local_lower_bound
+from elastoplast.bounds.local.rings import face_bases, mesh_rings, resultant_rows, ring_batches
+from elastoplast.bounds.local.energy import element_imbalance
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -168,9 +168,9 @@ def test_repair_visits_only_the_rings_of_unbalanced_elements(monkeypatch):
     through an element above the tolerance and leaves every other facet bit for bit (the
     old passes visited every ring); 16 passes bring every element below 1e-14; with a
     tolerance of 0, never met, the passes stop once one no longer lowers the imbalance
-    (edges.STALL) instead of running all 1000."""
-    from elastoplast.bounds import edges, sweeps
-    from elastoplast.bounds.edges import ring_repair
+    (sweeps.STALL) instead of running all 1000."""
+    from elastoplast.bounds.local import energy, sweeps
+    from elastoplast.bounds.local.sweeps import ring_repair
 
     disc = _quarter()
     mesh = disc.mesh
@@ -180,7 +180,7 @@ def test_repair_visits_only_the_rings_of_unbalanced_elements(monkeypatch):
     e0 = int(np.argmax(np.isin(faces.face, np.arange(faces.n_interior)).all(axis=1)))  # an interior element
     noisy = t.copy()
     noisy[faces.face[e0]] += 1e-10 * np.abs(t).max() * np.random.default_rng(2).normal(size=(4, 3, 3))
-    above = element_imbalance(mesh.points, mesh.cells, maps, faces, noisy) > edges.VISIT * tol
+    above = element_imbalance(mesh.points, mesh.cells, maps, faces, noisy) > sweeps.VISIT * tol
     assert above[e0] and above.sum() <= 5  # e0 and its face neighbours
     reach = np.zeros(faces.nodes.shape[0], dtype=bool)
     for b in batches:
@@ -194,50 +194,50 @@ def test_repair_visits_only_the_rings_of_unbalanced_elements(monkeypatch):
     _, _, after = ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, tol, 16)
     assert after <= tol
     calls = []
-    imbalance = sweeps.element_imbalance
+    imbalance = energy.element_imbalance
     monkeypatch.setattr(sweeps, "element_imbalance", lambda *a: calls.append(1) or imbalance(*a))
     _, _, floor = ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 0.0, 1000)
     assert len(calls) < 100 and floor <= tol
 
 
 def test_repair_in_blocks_of_rings_is_the_repair_of_whole_colours(monkeypatch):
-    """The repair solves a colour's rings in blocks (edges.REPAIR_CHUNK, to bound its
+    """The repair solves a colour's rings in blocks (sweeps.REPAIR_CHUNK, to bound its
     temporaries). The rings of a colour share no facet and each ring's system is its own,
     so blocks of 3 rings give the tractions of whole colours bit for bit, on noise over
     every facet (every ring visited)."""
-    from elastoplast.bounds import edges
+    from elastoplast.bounds.local import sweeps
 
     disc = _quarter()
     mesh = disc.mesh
     maps, faces, free, batches, t = _self_balanced_tractions(disc)
     noisy = t + 1e-10 * np.abs(t).max() * np.random.default_rng(5).normal(size=t.shape) * free[:, None, :]
     assert max(b.E.shape[0] for b in batches) > 3
-    whole = edges.ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 1e-14, 2)
+    whole = sweeps.ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 1e-14, 2)
     monkeypatch.setattr(edges, "REPAIR_CHUNK", 3)
-    blocks = edges.ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 1e-14, 2)
+    blocks = sweeps.ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 1e-14, 2)
     assert whole[1] == blocks[1] and whole[2] == blocks[2] < whole[1]
     np.testing.assert_array_equal(whole[0], blocks[0])
 
 
 @pytest.mark.parametrize("case", ["cylinder", "quarter", "default"])
 def test_compiled_ring_step_is_the_numpy_step(monkeypatch, case):
-    """The sweeps' compiled step (ring_kernel.ring_newton) against the batched numpy step
-    (edges.ring_step), batch by batch from the same tractions, through two sweeps of a real
+    """The sweeps' compiled step (kernel.ring_newton) against the batched numpy step
+    (sweeps.ring_step), batch by batch from the same tractions, through two sweeps of a real
     bound: the same new tractions and gains to round-off. The cases cover 2D and 3D, Γ0
     rings whose pressure moves, symmetry planes (the boundary rings' null spaces of the
     quarter sphere) and plastic elements (the default problem: the Newton curvature terms)."""
-    from elastoplast.bounds import edges
+    from elastoplast.bounds.local import sweeps
     from elastoplast.fem.material import von_mises
 
     disc = {"cylinder": lambda: build(cylinder_dict((24, 12))), "quarter": _quarter,
             "default": lambda: _shipped("sphere_block_3d", (6, 6, 3))}[case]()
     sol = ep.solve(disc, "newton")
-    compiled = edges.compiled_ring_step
+    compiled = sweeps.compiled_ring_step
     seen = {"batches": 0, "contact": 0, "t": 0.0, "gain": 0.0}
 
     def both(b, points, maps, faces, rings, t, volumes, ctx):
         t_numpy = t.copy()
-        g_numpy = edges.ring_step(b, points, maps, faces, rings, t_numpy, volumes, ctx)
+        g_numpy = sweeps.ring_step(b, points, maps, faces, rings, t_numpy, volumes, ctx)
         g = compiled(b, points, maps, faces, rings, t, volumes, ctx)
         scale = np.abs(t_numpy).max()
         seen["t"] = max(seen["t"], np.abs(t - t_numpy).max() / scale)
@@ -257,10 +257,10 @@ def test_compiled_ring_step_is_the_numpy_step(monkeypatch, case):
 
 @pytest.mark.parametrize("m, least, per_thread", [(0, 8, 4), (7, 8, 4), (16, 8, 4), (101, 8, 4), (1000, 64, 1), (5, 1, 3)])
 def test_slices_cover_every_ring_once(m, least, per_thread):
-    """edges.in_slices hands the rings of a colour to the kernel threads in slices (several per
+    """sweeps.in_slices hands the rings of a colour to the kernel threads in slices (several per
     thread, so that a free thread takes the next): every ring exactly once, and one call
     where there is room for one slice only."""
-    from elastoplast.bounds.edges import KERNEL_THREADS, in_slices
+    from elastoplast.bounds.local.sweeps import KERNEL_THREADS, in_slices
 
     seen, calls = np.zeros(m, dtype=int), []
 
@@ -280,7 +280,7 @@ def test_slices_run_in_a_child_forked_after_the_pool_ran():
     waiting on threads that were not copied."""
     import multiprocessing as mp
 
-    from elastoplast.bounds.edges import in_slices
+    from elastoplast.bounds.local.sweeps import in_slices
 
     def kernel(lo, hi, out):
         out[lo:hi] += 1

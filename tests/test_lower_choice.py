@@ -23,7 +23,7 @@ from elastoplast.adapt.budget import lower_bound_budget
 from elastoplast.adapt.records import AdaptOptions
 from elastoplast.bounds.bracket import (LOCAL_SOLVE_TOL, certified_bounds, check_lower_bound_fits, local_descent,
                                         local_solution, lower_bound, solve_at)
-from elastoplast.bounds.local import DESCENT_STEPS
+from elastoplast.bounds.local.construction import DESCENT_STEPS
 from elastoplast.bounds.lower import AUTO_GLOBAL_MAX_ELEMENTS, LowerBoundOptions, lower_bound_kind
 from elastoplast.cli.main import main
 from elastoplast.errors import InputError
@@ -169,7 +169,7 @@ def test_warm_started_solve_at_another_force(cylinder):
 
 
 def test_the_local_bracket_holds_and_overlaps_the_global_one(cylinder, monkeypatch):
-    import elastoplast.bounds.local as local_module
+    import elastoplast.bounds.local.construction as local_module
 
     disc, sol = cylinder
     seen, uppers = [], []

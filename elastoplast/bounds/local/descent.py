@@ -1,6 +1,6 @@
 """Descent of the local field over every ring correction at once (docs/bounds.md, "a local field").
 
-Ring sweeps (:mod:`elastoplast.bounds.edges`) minimise J one ring at a time. In plastic
+Ring sweeps (:mod:`elastoplast.bounds.local.sweeps`) minimise J one ring at a time. In plastic
 zones that is a poor method: the rings' moves are strongly coupled there, and the sweeps
 stall far above the optimum of the field's own space (on the quarter sphere at 162
 tetrahedra, 512 sweeps stop at J = 79.8 while the optimum over the same self-equilibrated
@@ -21,11 +21,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from elastoplast.bounds.edges import (LAM_MARGIN, element_context, in_slices, ring_corrections, ring_face_bases,
+from elastoplast.bounds.local.sweeps import (LAM_MARGIN, element_context, in_slices, ring_corrections, ring_face_bases,
                                       ring_step, scaled_system)
-from elastoplast.bounds.equilibrate import Faces, segment_ranges
-from elastoplast.bounds.lift import ElementMaps
-from elastoplast.bounds.rings import RingBatch
+from elastoplast.bounds.local.equilibrate import Faces, segment_ranges
+from elastoplast.bounds.local.lift import ElementMaps
+from elastoplast.bounds.local.rings import RingBatch
 
 #: L-BFGS pairs kept
 MEMORY = 10
@@ -138,7 +138,7 @@ class RingFrame:
 
 
 class RingPreconditioner:
-    """``v -> sum_r H_r^-1 v_r``: each ring's Hessian in its unknowns (:func:`~elastoplast.bounds.edges.ring_step`),
+    """``v -> sum_r H_r^-1 v_r``: each ring's Hessian in its unknowns (:func:`~elastoplast.bounds.local.sweeps.ring_step`),
     Jacobi-scaled with a relative ridge as the sweeps solve it, inverted once at ``t``
     (an additive Schwarz preconditioner of the rings)."""
 
@@ -161,10 +161,10 @@ def field_energy(maps: ElementMaps, faces: Faces, t: np.ndarray, volumes: np.nda
                  gradient: bool = True):
     """``(J, dJ/dt)`` of the facet tractions ``t (F, d, d)``: the lifted field's J (elements
     and the obstacle term ``sum psi lam`` of the Γ0 facets) and its gradient (or None), element
-    by element in compiled loops (:func:`~elastoplast.bounds.ring_kernel.field_energy_kernel`,
+    by element in compiled loops (:func:`~elastoplast.bounds.local.kernel.field_energy_kernel`,
     slices of the elements in threads). The per-mesh pieces (double Piola maps, facet scales,
     the per-element buffers) are kept in ``ctx`` after the first call."""
-    from elastoplast.bounds.ring_kernel import add_element_gradients, field_energy_kernel
+    from elastoplast.bounds.local.kernel import add_element_gradients, field_energy_kernel
 
     n, d = maps.J.shape[:2]
     d1 = d + 1
@@ -189,7 +189,7 @@ def field_energy(maps: ElementMaps, faces: Faces, t: np.ndarray, volumes: np.nda
 
 def pressure_cap(t: np.ndarray, dt: np.ndarray, contact: np.ndarray, held: np.ndarray) -> float:
     """The largest step along ``dt`` (at most 1) that keeps the Γ0 pressures ``>= 0`` (short
-    by :data:`~elastoplast.bounds.edges.LAM_MARGIN`), the ``held`` ones (:func:`pressure_projection`: they move by round-off) aside."""
+    by :data:`~elastoplast.bounds.local.sweeps.LAM_MARGIN`), the ``held`` ones (:func:`pressure_projection`: they move by round-off) aside."""
     d = t.shape[2]
     lam, dlam = t[contact, :, d - 1], dt[contact, :, d - 1]
     down = dlam < 0

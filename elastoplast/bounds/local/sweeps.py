@@ -1,7 +1,7 @@
 """Ring sweeps of the local lower bound: complementary-energy minimisation on edge patches
 (3D) and vertex stars (2D) that keeps the field exactly admissible (docs/bounds.md).
 
-On a ring (:mod:`elastoplast.bounds.rings`) the self-equilibrated corrections are
+On a ring (:mod:`elastoplast.bounds.local.rings`) the self-equilibrated corrections are
 ``tau_f = K_f alpha_f + W_f q`` in closed form. Each ring solves
 
     minimise  J_ring(t + B y)   over y = (alpha, q)
@@ -29,11 +29,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from elastoplast.bounds.equilibrate import Faces, element_tractions
-from elastoplast.bounds.lift import MANDEL_PAIRS, ElementMaps, mandel_to_tensor, reference_lift, tensor_to_mandel
-from elastoplast.bounds.rings import RingBatch, face_bases, local_entities
+from elastoplast.bounds.local.equilibrate import Faces, element_tractions
+from elastoplast.bounds.local.lift import MANDEL_PAIRS, ElementMaps, mandel_to_tensor, reference_lift, tensor_to_mandel
+from elastoplast.bounds.local.rings import RingBatch, face_bases, local_entities
 from elastoplast.bounds.static import mass_matrix
-from elastoplast.bounds.sweeps import element_energy, stress_map
+from elastoplast.bounds.local.energy import element_energy, stress_map
 from elastoplast.fem.material import Material, deviator_matrix, von_mises
 from elastoplast.limits import blocks
 
@@ -315,9 +315,9 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
 
 def compiled_ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes,
                        ctx: dict) -> np.ndarray:
-    """:func:`ring_step` in compiled loops, ring by ring (:func:`~elastoplast.bounds.ring_kernel.ring_newton`):
+    """:func:`ring_step` in compiled loops, ring by ring (:func:`~elastoplast.bounds.local.kernel.ring_newton`):
     the same step written into ``t``; returns each ring's gain."""
-    from elastoplast.bounds.ring_kernel import ring_newton
+    from elastoplast.bounds.local.kernel import ring_newton
 
     d = maps.J.shape[1]
     element_context(maps, faces, ctx)
@@ -451,11 +451,11 @@ def ring_repair(points, cells, maps: ElementMaps, faces: Faces, t: np.ndarray, b
     balance rows of its elements (rows normalised; ``(C C^T + eps I)`` solved and refined
     once, so a ring's own net imbalance, which it cannot change, is left for the next
     colour). Passes over the colours until the largest relative imbalance
-    (:func:`~elastoplast.bounds.sweeps.element_imbalance`) is at most ``tol``, or until a pass
+    (:func:`~elastoplast.bounds.local.energy.element_imbalance`) is at most ``tol``, or until a pass
     lowers it by less than :data:`STALL`; a pass visits only the rings with an element above
     ``VISIT * tol`` (a ring's correction changes the balance of its own elements only).
     Returns ``(t, before, after)``."""
-    from elastoplast.bounds.sweeps import element_imbalance
+    from elastoplast.bounds.local.energy import element_imbalance
 
     t = t.copy()
     imbalance = element_imbalance(points, cells, maps, faces, t)
@@ -497,7 +497,7 @@ def repair_rings(b: RingBatch, points, cells, maps: ElementMaps, faces: Faces, t
                  sel: np.ndarray, AV: np.ndarray) -> None:
     """One step of :func:`ring_repair` on the rings of ``b`` (of one colour): the least-norm
     correction of their faces' free components that zeroes their elements' balance rows, added into ``t``."""
-    from elastoplast.bounds.sweeps import balance_matrices
+    from elastoplast.bounds.local.energy import balance_matrices
 
     d = cells.shape[1] - 1
     dd = d * d

@@ -1,19 +1,19 @@
 """The ring sweep's Newton step compiled (numba): ring by ring, nothing batched in memory.
 
-:func:`~elastoplast.bounds.edges.ring_step` writes the step as batched numpy over every
+:func:`~elastoplast.bounds.local.sweeps.ring_step` writes the step as batched numpy over every
 element of a colour: each product makes an ``(N, ...)`` temporary of a few dozen entries
 per element, and the step is bound by that memory traffic (profile at 12,288 tetrahedra:
 no line above 20% of the step; the largest, the ring faces' bases and the element
 Hessians' temporaries). :func:`ring_newton` does the same arithmetic in compiled loops, one
 ring at a time, with the ring faces' bases computed in place
-(:mod:`elastoplast.bounds.ring_kernel_bases`) and the element Hessian's elastic part from
-the reference operators packed by symmetry (:func:`~elastoplast.bounds.edges.packed_hessian_operator`).
-It releases the GIL, so :func:`~elastoplast.bounds.edges.compiled_ring_step` runs slices of
+(:mod:`elastoplast.bounds.local.kernel_bases`) and the element Hessian's elastic part from
+the reference operators packed by symmetry (:func:`~elastoplast.bounds.local.sweeps.packed_hessian_operator`).
+It releases the GIL, so :func:`~elastoplast.bounds.local.sweeps.compiled_ring_step` runs slices of
 one colour in threads (the rings of a colour share no element and no facet: their writes
 into ``t`` never meet). The numpy step stays: the descent's preconditioner takes the rings'
 systems from it, and the tests hold the two steps to each other.
 
-Notation as in :mod:`elastoplast.bounds.edges`: per element ``e`` of a ring, its two facets
+Notation as in :mod:`elastoplast.bounds.local.sweeps`: per element ``e`` of a ring, its two facets
 through the entity (``lf``), their positions among the ring faces (``jpos``) and
 orientations (``o``); ``B (kf, d d, na + nq)`` the ring faces' bases; the element's lift
 ``sig (s b, k)`` at its sub-element vertices from the outward vertex tractions, with the
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from elastoplast.bounds.ring_kernel_bases import FAST, ring_bases, solve_small
+from elastoplast.bounds.local.kernel_bases import FAST, ring_bases, solve_small
 
 SQRT_3_2 = np.sqrt(1.5)
 
@@ -158,7 +158,7 @@ def _stress_gradient(e, sq, w, A, M, sy, H, Dv, TP, gs, As, vm, eta, etaMs, nrm,
 @njit(cache=True, fastmath=FAST, nogil=True)
 def field_energy_kernel(lo, hi, t, face, slot, sign, Jinv, scale, Lfull, TP, base, volumes, A, M, sy, H, Dv,
                         gradient, J_el, g_el):
-    """Elements ``lo`` to ``hi`` of the lifted field's J (:func:`~elastoplast.bounds.frame.field_energy`):
+    """Elements ``lo`` to ``hi`` of the lifted field's J (:func:`~elastoplast.bounds.local.descent.field_energy`):
     ``J_el (n,)`` each element's ``J_e``, and, with ``gradient``, ``g_el (n, d1, d1, d)`` its gradient
     in the element's outward vertex tractions (the caller adds them into the facets)."""
     d = Jinv.shape[1]
@@ -495,7 +495,7 @@ def _one_ring(ir, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, p
 def ring_newton(lo, hi, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, point, ell, ent, t, face, slot, sign,
                 Jinv, scale, TP, base, volumes,
                 A, M, sy, H, Dv, Lfull, Lsel, LselT, HQ, pairs, tri, AV, contact, psi, steps, ridge, lam_margin, gain):
-    """One Newton step of J on each ring (``E (m, ke)`` ...; see :func:`~elastoplast.bounds.edges.ring_step`,
+    """One Newton step of J on each ring (``E (m, ke)`` ...; see :func:`~elastoplast.bounds.local.sweeps.ring_step`,
     whose arithmetic this repeats), the first step length of ``steps`` that lowers ``J_ring`` written
     into ``t``; ``gain (m,)`` receives each ring's decrease of J. Rings ``lo`` to ``hi`` only, without the
     GIL: the caller runs slices of one colour in threads (its rings share no element and no facet)."""

@@ -1,7 +1,7 @@
 """Shared pieces of the local lower bound's sweeps and repair (docs/bounds.md, "a local field").
 
-The sweeps themselves are ring sweeps (:mod:`elastoplast.bounds.rings`,
-:mod:`elastoplast.bounds.edges`); this module holds what they share with the rest: the
+The sweeps themselves are ring sweeps (:mod:`elastoplast.bounds.local.rings`,
+:mod:`elastoplast.bounds.local.sweeps`); this module holds what they share with the rest: the
 element energy of sub-vertex stresses, the plane-strain stress map, the elements' force
 and moment rows of their vertex tractions, the relative element imbalance and the
 tolerances of the round-off repair. (The vertex-star sweeps with an SVD basis per star,
@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from elastoplast.bounds.equilibrate import Faces, element_tractions
-from elastoplast.bounds.lift import ElementMaps
-from elastoplast.bounds.lift import balance_matrices as vertex_balance_matrices
+from elastoplast.bounds.local.equilibrate import Faces, element_tractions
+from elastoplast.bounds.local.lift import ElementMaps
+from elastoplast.bounds.local.lift import balance_matrices as vertex_balance_matrices
 from elastoplast.fem.material import Material, von_mises
 from elastoplast.limits import blocks
 
@@ -25,7 +25,7 @@ IMBALANCE_BLOCK = 1 << 12
 REPAIR_PASSES = 4
 #: the element imbalance (relative to ``|C_e| max|t|``) below which the repair stops: round-off
 #: (the lift leaves an element's imbalance on its facets in the physical metric,
-#: :func:`~elastoplast.bounds.lift.lift`; before its refinement it amplified it up to 1e4
+#: :func:`~elastoplast.bounds.local.lift.lift`; before its refinement it amplified it up to 1e4
 #: times on elements of condition number 100-150)
 REPAIR_TOL = 2e-15
 
@@ -43,7 +43,7 @@ def stress_map(dim: int, material: Material) -> np.ndarray:
 
 def balance_matrices(points: np.ndarray, cells: np.ndarray, areas: np.ndarray) -> np.ndarray:
     """``(n, nb, (d+1)(d+1)d)``: force and moment (about the centroid) of an element's outward
-    vertex tractions ``t[i, a, j]`` (zero weight where a == i; :func:`~elastoplast.bounds.lift.balance_matrices`)."""
+    vertex tractions ``t[i, a, j]`` (zero weight where a == i; :func:`~elastoplast.bounds.local.lift.balance_matrices`)."""
     return vertex_balance_matrices(points[cells], areas)
 
 

@@ -26,13 +26,13 @@ import pytest
 from conftest import build, cylinder_dict, sphere_quarter_dict
 
 import elastoplast as ep
-from elastoplast.bounds.local.sweeps import sweep_context
 from elastoplast.bounds.local.equilibrate import mesh_faces
 from elastoplast.bounds.local.descent import RingFrame, field_energy, pressure_projection
 from elastoplast.bounds.local.lift import element_maps
 from elastoplast.bounds.local.construction import local_lower_bound
 from elastoplast.bounds.lower import solve_lower_bound
 from elastoplast.bounds.local.rings import mesh_rings, ring_batches
+from elastoplast.bounds.local.state import sweep_state
 from elastoplast.bounds.static import psi_weights
 from elastoplast.bounds.local.energy import balance_matrices
 from elastoplast.bounds.upper import best_upper_bound
@@ -118,26 +118,26 @@ def test_apply_and_adjoint_are_transposes_and_unit_rows_are_adjoint_columns(quar
     assert np.abs(full[:, rest]).max() == 0.0
 
 
-def _context(disc, faces, cf):
-    """J's context with the problem's obstacle weights on the Γ0 facets."""
+def _state(disc, maps, faces, cf):
+    """J's sweep state with the problem's obstacle weights on the Γ0 facets."""
     d = disc.dim
     psi = np.zeros((faces.nodes.shape[0], d))
     psi[cf] = psi_weights(disc, disc.facet_topology).q
     contact = np.zeros(faces.nodes.shape[0], dtype=bool)
     contact[cf] = True
-    return sweep_context(disc.material, faces, disc.n_elements, d, None, psi, contact)
+    return sweep_state(disc.material, maps, faces, None, psi, contact)
 
 
 def test_field_energy_gradient_matches_central_differences(quarter):
     disc, maps, faces, cf, free, rings, frame = quarter
-    ctx = _context(disc, faces, cf)
+    state = _state(disc, maps, faces, cf)
     rng = np.random.default_rng(2)
     t = rng.normal(size=(faces.nodes.shape[0], 3, 3)) * disc.material.yield_stress * 1.5  # a plastic state
-    J, g = field_energy(maps, faces, t, disc.volumes, ctx)
+    J, g = field_energy(maps, faces, t, disc.volumes, state)
     dt = frame.apply(rng.normal(size=frame.size))
     h = 1e-4 * np.abs(t).max() / np.abs(dt).max()
-    Jp, _ = field_energy(maps, faces, t + h * dt, disc.volumes, ctx, gradient=False)
-    Jm, _ = field_energy(maps, faces, t - h * dt, disc.volumes, ctx, gradient=False)
+    Jp, _ = field_energy(maps, faces, t + h * dt, disc.volumes, state, gradient=False)
+    Jm, _ = field_energy(maps, faces, t - h * dt, disc.volumes, state, gradient=False)
     assert (Jp - Jm) / (2 * h) == pytest.approx(float((g * dt).sum()), rel=1e-6)
 
 
@@ -224,20 +224,19 @@ def test_the_pressures_held_in_one_step_are_held_from_the_start_of_the_next(quar
 def test_field_energy_is_the_sum_of_the_element_energies(quarter):
     """The compiled J of the descent against the batched numpy pieces of the sweeps (the lift
     ``sweeps.lifted_stresses`` and ``energy.element_energy``) plus the obstacle term, at a plastic state."""
-    from elastoplast.bounds.local.sweeps import element_context, lifted_stresses
+    from elastoplast.bounds.local.sweeps import lifted_stresses
     from elastoplast.bounds.local.energy import element_energy
 
     disc, maps, faces, cf, free, rings, frame = quarter
-    ctx = _context(disc, faces, cf)
+    state = _state(disc, maps, faces, cf)
     rng = np.random.default_rng(4)
     t = rng.normal(size=(faces.nodes.shape[0], 3, 3)) * disc.material.yield_stress * 1.5
-    J, _ = field_energy(maps, faces, t, disc.volumes, ctx, gradient=False)
-    element_context(maps, faces, ctx)
+    J, _ = field_energy(maps, faces, t, disc.volumes, state, gradient=False)
     n = disc.n_elements
-    sig = lifted_stresses(maps, faces, t, np.arange(n), ctx["TP"], ctx["scale"], ctx).reshape(n, 4, 4, -1)
-    el = element_energy(sig, disc.volumes / 4, ctx["MA"], ctx["M"], ctx["sy"], ctx["H"])
-    assert el.max() > 0 and (von_mises(sig) > ctx["sy"]).any()
-    assert J == pytest.approx(el.sum() + (ctx["psi"][cf] * t[cf, :, 2]).sum(), rel=1e-12)
+    sig = lifted_stresses(maps, faces, t, np.arange(n), state.TP, state.scale, state).reshape(n, 4, 4, -1)
+    el = element_energy(sig, disc.volumes / 4, state.MA, state.M, state.sy, state.H)
+    assert el.max() > 0 and (von_mises(sig) > state.sy).any()
+    assert J == pytest.approx(el.sum() + (state.psi[cf] * t[cf, :, 2]).sum(), rel=1e-12)
 
 
 def test_the_descent_goes_on_where_held_rows_nearly_depend():

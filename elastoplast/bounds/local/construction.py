@@ -134,7 +134,8 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     report = progress if progress is not None else (lambda fraction, what: None)
     report(0.1, "equilibrated tractions")
     if n_sweeps > 0:
-        from elastoplast.bounds.local.sweeps import ring_repair, ring_sweep, sweep_context
+        from elastoplast.bounds.local.state import sweep_state
+        from elastoplast.bounds.local.sweeps import ring_repair, ring_sweep
         from elastoplast.bounds.local.rings import mesh_rings, ring_batches
         from elastoplast.bounds.local.energy import REPAIR_PASSES, REPAIR_TOL
 
@@ -163,8 +164,8 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
         on_contact = np.zeros(faces.nodes.shape[0], dtype=bool)
         on_contact[cf] = True
         release_freed_memory()  # the rings' set-up temporaries
-        ctx = sweep_context(m, faces, disc.n_elements, d, offset, psi_face, on_contact)  # the sweeps' and the descent's
-        t = ring_sweep(mesh.points, mesh.cells, maps, faces, rings, t, disc.volumes, ctx, batches, n_sweeps, swept)
+        state = sweep_state(m, maps, faces, offset, psi_face, on_contact)  # the sweeps' and the descent's
+        t = ring_sweep(mesh.points, mesh.cells, maps, faces, rings, t, disc.volumes, state, batches, n_sweeps, swept)
         timings["sweeps"] = time.perf_counter() - t1
         timings["descent_steps"] = 0
         if descent > 0:
@@ -175,7 +176,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
             def stepped(i):
                 report(0.5 + 0.4 * i / descent, f"descent step {i} of at most {descent}")
 
-            t, timings["descent_steps"] = frame_descent(mesh.points, maps, faces, rings, t, disc.volumes, ctx,
+            t, timings["descent_steps"] = frame_descent(mesh.points, maps, faces, rings, t, disc.volumes, state,
                                                         RingFrame(batches, mesh.points, faces, rings, d), descent, stepped,
                                                         upper)
             timings["descent"] = time.perf_counter() - t1
@@ -189,7 +190,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
         lam = t[cf, :, d - 1].copy()
         timings["repair"] = time.perf_counter() - t1
         report(0.9, "repaired")
-        del rings, batches, ctx  # the sweeps' structures: not needed for the lift, and as large as the field
+        del rings, batches, state  # the sweeps' structures: not needed for the lift, and as large as the field
     te = element_tractions(faces, t)
     contact_nodes = faces.nodes[cf]
     del t, faces  # freed before the lift and the split mesh's topology make their own temporaries

@@ -1,17 +1,14 @@
 """The ring sweep's Newton step compiled (numba): ring by ring, nothing batched in memory.
 
-:func:`~elastoplast.bounds.local.sweeps.ring_step` writes the step as batched numpy over every
-element of a colour: each product makes an ``(N, ...)`` temporary of a few dozen entries
-per element, and the step is bound by that memory traffic (profile at 12,288 tetrahedra:
-no line above 20% of the step; the largest, the ring faces' bases and the element
-Hessians' temporaries). :func:`ring_newton` does the same arithmetic in compiled loops, one
-ring at a time, with the ring faces' bases computed in place
+The step is written once, here, as compiled loops one ring at a time (a batched numpy form
+over every element of a colour was bound by its ``(N, ...)`` temporaries' memory traffic,
+and is gone): the ring faces' bases computed in place
 (:mod:`elastoplast.bounds.local.kernel_bases`) and the element Hessian's elastic part from
 the reference operators packed by symmetry (:func:`~elastoplast.bounds.local.sweeps.packed_hessian_operator`).
 It releases the GIL, so :func:`~elastoplast.bounds.local.sweeps.compiled_ring_step` runs slices of
 one colour in threads (the rings of a colour share no element and no facet: their writes
-into ``t`` never meet). The numpy step stays: the descent's preconditioner takes the rings'
-systems from it, and the tests hold the two steps to each other.
+into ``t`` never meet). The descent's preconditioner takes the rings' Hessians from the numpy
+:func:`~elastoplast.bounds.local.sweeps.ring_hessians`.
 
 Notation as in :mod:`elastoplast.bounds.local.sweeps`: per element ``e`` of a ring, its two facets
 through the entity (``lf``), their positions among the ring faces (``jpos``) and
@@ -77,7 +74,10 @@ def _von_mises(sig, dev):
 
 @njit(cache=True, fastmath=FAST)
 def _energy(sig, w, A, M, sy, H):
-    """``J_e`` of sub-vertex stresses ``sig (d1 d1, k)`` (sub volume ``w``)."""
+    """``J_e`` of sub-vertex stresses ``sig (d1 d1, k)`` (sub volume ``w``): the compiled twin of
+    :func:`elastoplast.bounds.local.energy.element_energy` (the one numpy J_e), kept because the
+    ring step and the descent's energy call it per element inside compiled loops;
+    ``tests/test_local_frame.py::test_field_energy_is_the_sum_of_the_element_energies`` holds the two to each other."""
     d1 = M.shape[0]
     k = sig.shape[1]
     dev = np.empty(k)
@@ -495,8 +495,8 @@ def _one_ring(ir, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, p
 def ring_newton(lo, hi, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, point, ell, ent, t, face, slot, sign,
                 Jinv, scale, TP, base, volumes,
                 A, M, sy, H, Dv, Lfull, Lsel, LselT, HQ, pairs, tri, AV, contact, psi, steps, ridge, lam_margin, gain):
-    """One Newton step of J on each ring (``E (m, ke)`` ...; see :func:`~elastoplast.bounds.local.sweeps.ring_step`,
-    whose arithmetic this repeats), the first step length of ``steps`` that lowers ``J_ring`` written
+    """One Newton step of J on each ring (``E (m, ke)`` ...; notation in the module docstring; the
+    Hessian is :func:`~elastoplast.bounds.local.sweeps.ring_hessians`'), the first step length of ``steps`` that lowers ``J_ring`` written
     into ``t``; ``gain (m,)`` receives each ring's decrease of J. Rings ``lo`` to ``hi`` only, without the
     GIL: the caller runs slices of one colour in threads (its rings share no element and no facet)."""
     for ir in range(lo, hi):

@@ -43,19 +43,19 @@ ROUNDS = 5
 
 def record_sweep(disc, sol) -> tuple[list, np.ndarray, int]:
     """The calls of the compiled step in one sweep of the local bound: ``(calls, t, it)``, each call
-    ``(m, args)`` with its arguments by reference (the kernel writes only ``args[it]``, the
-    tractions, and its gains), ``t`` the tractions before the sweep's first call."""
+    ``(m, args)`` with its arguments by reference (the kernel writes only the tractions, the first
+    of the group ``args[it]``, and its gains), ``t`` the tractions before the sweep's first call."""
     from elastoplast.bounds.local import sweeps
     from elastoplast.bounds.local.construction import local_lower_bound
     from elastoplast.bounds.local.kernel import ring_newton
 
     calls, first = [], {}
-    it = ring_newton.py_func.__code__.co_varnames.index("t") - 2
+    it = ring_newton.py_func.__code__.co_varnames.index("field") - 2
     original = sweeps.in_slices
 
     def recording(kernel, m, args, **slicing):
         if kernel is ring_newton:
-            first.setdefault("t", args[it].copy())
+            first.setdefault("t", args[it][0].copy())
             calls.append((m, list(args)))
         return original(kernel, m, args, **slicing)
 
@@ -76,7 +76,7 @@ def replay(calls, t0: np.ndarray, it: int, threads: bool) -> float:
     total = 0.0
     for m, args in calls:
         args = list(args)
-        args[it] = t
+        args[it] = (t,) + tuple(args[it][1:])
         args[-1] = np.zeros(m)
         start = time.perf_counter()
         if threads:

@@ -215,10 +215,15 @@ def add_element_gradients(g_el, face, slot, sign, g):
 
 
 @njit(cache=True, fastmath=FAST)
-def _one_ring(ir, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, point, ell, ent, t, face, slot, sign,
-              Jinv, scale, TP, base, volumes,
-              A, M, sy, H, Dv, Lfull, Lsel, LselT, HQ, pairs, tri, AV, contact, psi, steps, ridge, lam_margin, gain):
-    """Ring ``ir`` of :func:`ring_newton`."""
+def _one_ring(ir, batch, geometry, field, material, operators, obstacle, control, gain):
+    """Ring ``ir`` of :func:`ring_newton` (its arguments' groups unpacked here)."""
+    E, valid, le, lf, jpos, o, F, s, end, Nb, na = batch
+    points, nodes, point, ell, ent = geometry
+    t, face, slot, sign, Jinv, scale, TP, base, volumes = field
+    A, M, sy, H, Dv = material
+    Lfull, Lsel, LselT, HQ, pairs, tri, AV = operators
+    contact, psi = obstacle
+    steps, ridge, lam_margin = control
     m_r, ke = E.shape
     kf = F.shape[1]
     d = Jinv.shape[1]
@@ -492,14 +497,18 @@ def _one_ring(ir, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, p
 
 
 @njit(cache=True, fastmath=FAST, nogil=True)
-def ring_newton(lo, hi, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, point, ell, ent, t, face, slot, sign,
-                Jinv, scale, TP, base, volumes,
-                A, M, sy, H, Dv, Lfull, Lsel, LselT, HQ, pairs, tri, AV, contact, psi, steps, ridge, lam_margin, gain):
-    """One Newton step of J on each ring (``E (m, ke)`` ...; notation in the module docstring; the
-    Hessian is :func:`~elastoplast.bounds.local.sweeps.ring_hessians`'), the first step length of ``steps`` that lowers ``J_ring`` written
-    into ``t``; ``gain (m,)`` receives each ring's decrease of J. Rings ``lo`` to ``hi`` only, without the
-    GIL: the caller runs slices of one colour in threads (its rings share no element and no facet)."""
+def ring_newton(lo, hi, batch, geometry, field, material, operators, obstacle, control, gain):
+    """One Newton step of J on each ring, the first step length of ``steps`` that lowers ``J_ring``
+    written into ``t``; ``gain (m,)`` receives each ring's decrease of J. Rings ``lo`` to ``hi`` only,
+    without the GIL: the caller runs slices of one colour in threads (its rings share no element and
+    no facet). The arguments in groups (tuples; notation in the module docstring):
+    ``batch (E, valid, le, lf, jpos, o, F, s, end, Nb, na)`` the rings (a
+    :class:`~elastoplast.bounds.local.rings.RingBatch` and ``na``, the face bases' width);
+    ``geometry (points, nodes, point, ell, ent)`` what their face bases are built from;
+    ``field (t, face, slot, sign, Jinv, scale, TP, base, volumes)`` the tractions (written) and
+    what lifts them; ``material (A, M, sy, H, Dv)``; ``operators (Lfull, Lsel, LselT, HQ, pairs,
+    tri, AV)`` the reference operators (:func:`~elastoplast.bounds.local.sweeps.packed_hessian_operator`);
+    ``obstacle (contact, psi)``; ``control (steps, ridge, lam_margin)``. The Hessian it assembles
+    per ring is the numpy :func:`~elastoplast.bounds.local.sweeps.ring_hessians`'."""
     for ir in range(lo, hi):
-        _one_ring(ir, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, point, ell, ent, t, face, slot, sign,
-                  Jinv, scale, TP, base, volumes,
-                  A, M, sy, H, Dv, Lfull, Lsel, LselT, HQ, pairs, tri, AV, contact, psi, steps, ridge, lam_margin, gain)
+        _one_ring(ir, batch, geometry, field, material, operators, obstacle, control, gain)

@@ -210,13 +210,20 @@ def compiled_ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, ri
     Lfull, AV = state.ops.Lfull, state.ops.AV
     pairs, tri, HQp, Lsel, LselT = packed_hessian_operator(d)
     gain = np.zeros(b.E.shape[0])
-    args = [b.E, b.valid, b.le, b.lf, b.j, b.o.astype(float), b.F, b.s, b.end, b.Nb, d if d == 3 else 1, points,
-            faces.nodes, rings.point, rings.ell, b.ent, t, faces.face, faces.slot, state.sign,
-            maps.Jinv, state.scale, state.TP, state.base, volumes, state.A, state.M, state.sy,
-            state.H, state.Dv, Lfull, Lsel, LselT, HQp, pairs, tri, AV, state.contact, state.psi,
-            np.array(STEPS), RIDGE, LAM_MARGIN, gain]
-    # one compiled signature: every array C-contiguous and writable (a read-only view is copied; t is written in place)
-    args = [np.require(a, requirements=("C", "W")) if isinstance(a, np.ndarray) and a is not t else a for a in args]
+
+    def ready(*arrays):  # one compiled signature: every array C-contiguous and writable (a read-only view
+        # is copied; t, written in place, is C-contiguous and writable already)
+        return tuple(np.require(a, requirements=("C", "W")) if isinstance(a, np.ndarray) and a is not t else a
+                     for a in arrays)
+
+    batch = ready(b.E, b.valid, b.le, b.lf, b.j, b.o.astype(float), b.F, b.s, b.end, b.Nb, d if d == 3 else 1)
+    geometry = ready(points, faces.nodes, rings.point, rings.ell, b.ent)
+    field = ready(t, faces.face, faces.slot, state.sign, maps.Jinv, state.scale, state.TP, state.base, volumes)
+    material = ready(state.A, state.M, state.sy, state.H, state.Dv)
+    operators = ready(Lfull, Lsel, LselT, HQp, pairs, tri, AV)
+    obstacle = ready(state.contact, state.psi)
+    control = (np.array(STEPS), RIDGE, LAM_MARGIN)
+    args = [batch, geometry, field, material, operators, obstacle, control, gain]
     in_slices(ring_newton, b.E.shape[0], args, least=RING_SLICE, per_thread=RING_SLICES_PER_THREAD)
     return gain
 

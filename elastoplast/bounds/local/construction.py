@@ -135,9 +135,8 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     report(0.1, "equilibrated tractions")
     if n_sweeps > 0:
         from elastoplast.bounds.local.state import sweep_state
-        from elastoplast.bounds.local.sweeps import ring_repair, ring_sweep
+        from elastoplast.bounds.local.sweeps import REPAIR_PASSES, REPAIR_TOL, ring_repair, ring_sweep
         from elastoplast.bounds.local.rings import mesh_rings, ring_batches
-        from elastoplast.bounds.local.energy import REPAIR_PASSES, REPAIR_TOL
 
         t1 = time.perf_counter()
         free = faces.unknown.copy()

@@ -1,12 +1,14 @@
-"""Shared pieces of the local lower bound's sweeps and repair (docs/bounds.md, "a local field").
+"""The element complementary energy of the local field and what the sweeps, the descent and
+the repair share with it (docs/bounds.md, "a local field").
 
-The sweeps themselves are ring sweeps (:mod:`elastoplast.bounds.local.rings`,
-:mod:`elastoplast.bounds.local.sweeps`); this module holds what they share with the rest: the
-element energy of sub-vertex stresses, the plane-strain stress map, the elements' force
-and moment rows of their vertex tractions, the relative element imbalance and the
-tolerances of the round-off repair. (The vertex-star sweeps with an SVD basis per star,
-and the whole-mesh balance projection they needed as a fallback, were replaced by the
-ring sweeps and the ring repair: in 3D a star has about 300 traction unknowns, a ring 54.)"""
+:func:`element_energy` is J_e of sub-vertex stresses, ``w/2 sum_s sig_s (M x A) sig_s +
+w/(2H) sum_s eta_s M eta_s`` with ``eta = max(0, vm - sigma_y)``: the one numpy copy (the
+sweeps' and the descent's compiled loops keep a twin, ``kernel._energy``, held to this one
+by ``tests/test_local_frame.py``). Beside it: the plane-strain stress map, the elements'
+force and moment rows of their vertex tractions and the relative element imbalance that
+the round-off repair drives to zero. (The vertex-star sweeps with an SVD basis per star
+were replaced by the ring sweeps and the ring repair: in 3D a star has about 300 traction
+unknowns, a ring 54.)"""
 
 from __future__ import annotations
 
@@ -21,13 +23,6 @@ from elastoplast.limits import blocks
 #: elements per block of :func:`element_imbalance` (a block's balance rows and their squares:
 #: some 10 kB per element; 4k elements keep them near 40 MB)
 IMBALANCE_BLOCK = 1 << 12
-#: passes of the round-off repair at most (each visits every colour)
-REPAIR_PASSES = 4
-#: the element imbalance (relative to ``|C_e| max|t|``) below which the repair stops: round-off
-#: (the lift leaves an element's imbalance on its facets in the physical metric,
-#: :func:`~elastoplast.bounds.local.lift.lift`; before its refinement it amplified it up to 1e4
-#: times on elements of condition number 100-150)
-REPAIR_TOL = 2e-15
 
 
 def stress_map(dim: int, material: Material) -> np.ndarray:

@@ -307,6 +307,13 @@ def lifted_stresses(maps: ElementMaps, faces: Faces, t: np.ndarray, E: np.ndarra
     return np.matmul(Sig, np.swapaxes(TP, 1, 2)) + state.base[E][:, None, :]
 
 
+#: passes of the round-off repair at most (each visits every colour)
+REPAIR_PASSES = 4
+#: the element imbalance (relative to ``|C_e| max|t|``) below which the repair stops: round-off
+#: (the lift leaves an element's imbalance on its facets in the physical metric,
+#: :func:`~elastoplast.bounds.local.lift.lift`; before its refinement it amplified it up to 1e4
+#: times on elements of condition number 100-150)
+REPAIR_TOL = 2e-15
 #: the round-off repair stops once a pass leaves the largest imbalance above this share of the
 #: last (at the round-off of the rings' own solves: on the default 3D problem at 98,304
 #: tetrahedra, from a P1 solution to 1e-13, 1.8e-14 went to 2.72e-15 after 4 passes, 2.73e-15

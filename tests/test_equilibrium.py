@@ -37,7 +37,7 @@ from elastoplast.bounds.equilibrium.repair import repair_static
 from elastoplast.mesh.topology import facet_measure, facet_topology, outward_facet_normals
 from elastoplast.fem.assembly import element_geometry
 from elastoplast.mesh.topology import boundary_facets
-from elastoplast.bounds.local import split_discretization
+from elastoplast.bounds.local.construction import split_discretization
 
 
 def patch_force(dim: int, stress_ratio: float, m: ep.Material) -> float:

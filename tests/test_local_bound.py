@@ -1,4 +1,4 @@
-"""The local lower bound (elastoplast/bounds/local.py): an exactly admissible field built from
+"""The local lower bound (elastoplast/bounds/local/construction.py): an exactly admissible field built from
 the P1 solution, certified by the same static certificate as the global program.
 
 Where the numbers come from:
@@ -34,9 +34,9 @@ from test_equilibrium import closed_form_energy, patch_force
 from test_patch import E, H, NU, SY, patch_problem
 
 import elastoplast as ep
-from elastoplast.bounds import contact_layer, local
-from elastoplast.bounds.lift import element_maps, lift, reference_lift
-from elastoplast.bounds.local import equilibrated_field, local_lower_bound
+from elastoplast.bounds.local import construction, contact
+from elastoplast.bounds.local.lift import element_maps, lift, reference_lift
+from elastoplast.bounds.local.construction import equilibrated_field, local_lower_bound
 from elastoplast.bounds.equilibrium.bound import solve_lower_bound
 from elastoplast.bounds.static import certify_static, mass_matrix
 from elastoplast.references.solves import best_upper_bound
@@ -126,9 +126,9 @@ def test_tau33_moves_only_towards_lower_J(cylinder):
     sd = lf.split.disc
     tau = lf.field.tau.copy()
     tau[..., 2] = disc.material.nu * (tau[..., 0] + tau[..., 1])  # the elastic minimiser, not J's
-    new = local.optimal_tau33(sd, tau)
+    new = construction.optimal_tau33(sd, tau)
     assert np.array_equal(new[..., [0, 1, 3]], tau[..., [0, 1, 3]])  # equilibrium untouched
-    e0, e1 = local.element_energies(sd, tau[:, None]), local.element_energies(sd, new[:, None])
+    e0, e1 = construction.element_energies(sd, tau[:, None]), construction.element_energies(sd, new[:, None])
     assert np.all(e1 <= e0 * (1 + 1e-12))  # kept only where it lowers J (to round-off: two summation orders)
     assert e1.sum() < e0.sum()  # the field is plastic (previous test): tau33 matters
 
@@ -136,16 +136,16 @@ def test_tau33_moves_only_towards_lower_J(cylinder):
 def test_deeper_contact_layer_needs_a_smaller_correction(cylinder, monkeypatch):
     # least norm (sum |T| |Delta_T|^2) over a superset of elements is never larger
     disc, sol, _ = cylinder
-    from elastoplast.bounds.equilibrate import mesh_faces
-    from elastoplast.bounds.lift import element_maps
+    from elastoplast.bounds.local.equilibrate import mesh_faces
+    from elastoplast.bounds.local.lift import element_maps
 
     maps = element_maps(disc.mesh.points, disc.mesh.cells)
     faces = mesh_faces(disc.mesh.cells, disc.facet_topology, maps.facet_areas)
-    S = local.in_plane_stress(disc, sol.sigma)
+    S = construction.in_plane_stress(disc, sol.sigma)
     norms = []
-    for depth in (0.0, contact_layer.LAYER_DEPTH):
-        monkeypatch.setattr(contact_layer, "LAYER_DEPTH", depth)
-        _, dS = contact_layer.contact_pressure_and_correction(disc, faces, S, sol.contact_force)
+    for depth in (0.0, contact.LAYER_DEPTH):
+        monkeypatch.setattr(contact, "LAYER_DEPTH", depth)
+        _, dS = contact.contact_pressure_and_correction(disc, faces, S, sol.contact_force)
         norms.append(float(np.einsum("e,eij,eij->", disc.volumes, dS, dS)))
     assert norms[1] <= norms[0] * (1 + 1e-12)
 
@@ -158,8 +158,8 @@ def test_the_pressure_carries_the_contact_forces_resultant_and_moments_exactly(c
     the earlier fit, with those rows weighted by 1e3, left a moment mismatch of 2.4e-8 of
     F w here (5e-10 at 6,400 triangles), which no layer can carry."""
     disc, sol, _ = cylinder
-    from elastoplast.bounds.equilibrate import mesh_faces
-    from elastoplast.bounds.lift import element_maps
+    from elastoplast.bounds.local.equilibrate import mesh_faces
+    from elastoplast.bounds.local.lift import element_maps
     from elastoplast.bounds.static import mass_matrix
 
     maps = element_maps(disc.mesh.points, disc.mesh.cells)
@@ -169,7 +169,7 @@ def test_the_pressure_carries_the_contact_forces_resultant_and_moments_exactly(c
     x = disc.mesh.points[disc.contact_nodes, 0]
     r = np.asarray(sol.contact_force) * (1 + 0.5 * x / np.abs(x).max())
     r *= disc.force / r.sum()
-    lam = contact_layer.nodal_pressure(disc, fn, measure, r)
+    lam = contact.nodal_pressure(disc, fn, measure, r)
     assert np.all(lam >= 0)
     moments = np.zeros(disc.mesh.n_nodes)  # int phi_a lam per node
     np.add.at(moments, fn.ravel(), (measure[:, None] * (lam[fn] @ mass_matrix(disc.dim - 1))).ravel())
@@ -184,13 +184,13 @@ def test_a_layer_too_thin_for_an_exact_correction_grows(cylinder, monkeypatch):
     (at most LAYER_GROWTH) until its correction is exact, else the refusal names the rings
     tried. Here the thinner layers are made to fail."""
     disc, sol, _ = cylinder
-    from elastoplast.bounds.equilibrate import mesh_faces
-    from elastoplast.bounds.lift import element_maps
+    from elastoplast.bounds.local.equilibrate import mesh_faces
+    from elastoplast.bounds.local.lift import element_maps
 
     maps = element_maps(disc.mesh.points, disc.mesh.cells)
     faces = mesh_faces(disc.mesh.cells, disc.facet_topology, maps.facet_areas)
-    S = local.in_plane_stress(disc, sol.sigma)
-    exact = contact_layer.layer_correction
+    S = construction.in_plane_stress(disc, sol.sigma)
+    exact = contact.layer_correction
     tried = []
 
     def thin_fails(disc, on_contact, measure, delta, r, rings, fail_below):
@@ -198,18 +198,18 @@ def test_a_layer_too_thin_for_an_exact_correction_grows(cylinder, monkeypatch):
         dS, worst = exact(disc, on_contact, measure, delta, r, rings)
         return dS, (1e-9 if rings < fail_below else worst)
 
-    start = contact_layer.LAYER_RINGS
-    monkeypatch.setattr(contact_layer, "layer_correction", lambda *a: thin_fails(*a, fail_below=start + 2))
-    _, dS = contact_layer.contact_pressure_and_correction(disc, faces, S, sol.contact_force)
+    start = contact.LAYER_RINGS
+    monkeypatch.setattr(contact, "layer_correction", lambda *a: thin_fails(*a, fail_below=start + 2))
+    _, dS = contact.contact_pressure_and_correction(disc, faces, S, sol.contact_force)
     assert tried == [start, start + 1, start + 2]
-    monkeypatch.setattr(contact_layer, "layer_correction", exact)
-    _, direct = contact_layer.contact_pressure_and_correction(disc, faces, S, sol.contact_force, start + 2)
+    monkeypatch.setattr(contact, "layer_correction", exact)
+    _, direct = contact.contact_pressure_and_correction(disc, faces, S, sol.contact_force, start + 2)
     assert np.array_equal(dS, direct)  # the grown layer's own correction
     tried.clear()
-    monkeypatch.setattr(contact_layer, "layer_correction", lambda *a: thin_fails(*a, fail_below=99))
-    with pytest.raises(ep.InputError, match=f"layers of {start} to {start + contact_layer.LAYER_GROWTH} rings"):
-        contact_layer.contact_pressure_and_correction(disc, faces, S, sol.contact_force)
-    assert tried == list(range(start, start + contact_layer.LAYER_GROWTH + 1))
+    monkeypatch.setattr(contact, "layer_correction", lambda *a: thin_fails(*a, fail_below=99))
+    with pytest.raises(ep.InputError, match=f"layers of {start} to {start + contact.LAYER_GROWTH} rings"):
+        contact.contact_pressure_and_correction(disc, faces, S, sol.contact_force)
+    assert tried == list(range(start, start + contact.LAYER_GROWTH + 1))
 
 
 def test_3d_local_bound_is_certified():
@@ -276,9 +276,9 @@ def test_plastic_energy_is_never_under_estimated():
 def _noisy_sweep(size):
     """A stand-in for the sweeps that adds round-off-like noise (``size`` relative to max |t|,
     on the interior facets' components): the accumulated round-off the repair removes."""
-    from elastoplast.bounds import edges
+    from elastoplast.bounds.local import sweeps
 
-    real = edges.ring_sweep
+    real = sweeps.ring_sweep
 
     def noisy(points, cells, maps, faces, rings, t, *args, **kw):
         out = real(points, cells, maps, faces, rings, t, *args, **kw)
@@ -294,16 +294,16 @@ def test_round_off_repair_restores_the_certificate(cylinder, monkeypatch):
     sweeps' own round-off measured 2-3e-12 at 6,400 triangles before the repair) is refused
     without the repair, certified with it, and the repaired bound equals the clean one to
     that relative size (the repair moves the field by the size of the noise)."""
-    from elastoplast.bounds import edges
+    from elastoplast.bounds.local import sweeps
 
     disc, sol, _ = cylinder
     clean = local_lower_bound(disc, sol, n_sweeps=1, descent=0)
-    monkeypatch.setattr(edges, "ring_sweep", _noisy_sweep(5e-12))
+    monkeypatch.setattr(sweeps, "ring_sweep", _noisy_sweep(5e-12))
     repaired = local_lower_bound(disc, sol, n_sweeps=1, descent=0)
     assert repaired.certified, repaired.message
     assert "whole-mesh" not in repaired.message  # ring passes only: nothing global factored
     assert repaired.lower == pytest.approx(clean.lower, rel=1e-9)
-    monkeypatch.setattr(edges, "ring_repair", lambda p, c, m, f, t, b, free, tol, passes: (t, 0.0, 0.0))
+    monkeypatch.setattr(sweeps, "ring_repair", lambda p, c, m, f, t, b, free, tol, passes: (t, 0.0, 0.0))
     unrepaired = local_lower_bound(disc, sol, n_sweeps=1, descent=0)
     assert not unrepaired.certified and "traction_jump" in unrepaired.certificate.failed
 
@@ -320,7 +320,7 @@ def test_swept_field_certifies_where_the_round_off_was_refused():
     tau[7, 1, 0] += 1e-9 * np.abs(tau).max()
     from dataclasses import replace
 
-    from elastoplast.bounds.local import split_discretization
+    from elastoplast.bounds.local.construction import split_discretization
 
     assert not certify_static(split_discretization(disc).disc, replace(lb.field, tau=tau)).passed
 
@@ -330,11 +330,11 @@ def test_the_load_is_restored_after_the_sweeps(cylinder, monkeypatch):
     left int lam 2e-12 of F off on an adapted cylinder mesh, refused at 1e-12): certified with
     the load restored, int lam = F to round-off and the bound the clean one to that relative
     size; refused for force_balance without the restoration."""
-    from elastoplast.bounds import edges
+    from elastoplast.bounds.local import sweeps
 
     disc, sol, _ = cylinder
     clean = local_lower_bound(disc, sol, n_sweeps=1, descent=0)
-    sweep = edges.ring_sweep
+    sweep = sweeps.ring_sweep
 
     def drifted(points, cells, maps, faces, *args):
         t = sweep(points, cells, maps, faces, *args)
@@ -342,11 +342,11 @@ def test_the_load_is_restored_after_the_sweeps(cylinder, monkeypatch):
         t[cf, :, disc.dim - 1] *= 1 + 1e-11
         return t
 
-    monkeypatch.setattr(edges, "ring_sweep", drifted)
+    monkeypatch.setattr(sweeps, "ring_sweep", drifted)
     restored = local_lower_bound(disc, sol, n_sweeps=1, descent=0)
     assert restored.certified, restored.message
     assert restored.certificate.force_balance <= 1e-14
     assert restored.lower == pytest.approx(clean.lower, rel=1e-9)
-    monkeypatch.setattr(local, "restore_load", lambda t, measure, cf, F: None)
+    monkeypatch.setattr(construction, "restore_load", lambda t, measure, cf, F: None)
     drifting = local_lower_bound(disc, sol, n_sweeps=1, descent=0)
     assert not drifting.certified and drifting.certificate.failed == ("force_balance",)

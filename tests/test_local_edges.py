@@ -1,4 +1,4 @@
-"""Ring sweeps of the local lower bound (elastoplast/bounds/rings.py, edges.py).
+"""Ring sweeps of the local lower bound (elastoplast/bounds/local/rings.py, sweeps.py).
 
 Where the numbers come from:
 * the face bases are closed forms: ``R K = 0`` and ``R G = I`` hold to round-off (checked
@@ -12,9 +12,10 @@ Where the numbers come from:
   target (gap at most 1.5 times the global program's) on the default 3D problem at 1,536
   tetrahedra (measured 1.33 with 16 sweeps alone, 1.27 with 32, 1.00 with 8 sweeps and 300
   descent steps over all rings, benchmarks/bounds/local.md);
-* the compiled ring step (``ring_kernel``) is the batched numpy step (``edges.ring_step``)
-  written again as loops: from the same tractions both give the same new tractions and
-  gains to round-off (a change to one side's curvature terms fails it);
+* the compiled ring step (``kernel``): each ring's gain is its J before minus its J after,
+  both from the numpy lift and J_e; with J quadratic (no yield) the gain is the quadratic
+  model's Newton decrease from the numpy ring Hessian (``sweeps.ring_hessians``) and the
+  descent's gradient (a change to the kernel's Hessian or gradient terms fails it);
 * moving the pressure keeps ``int lam = F`` (the rings are self-equilibrated, so their
   boundary faces' net force is zero) and ``lam >= 0`` (steps are capped).
 """
@@ -28,12 +29,12 @@ import pytest
 from conftest import build, cylinder_dict, sphere_quarter_dict
 
 import elastoplast as ep
-from elastoplast.bounds.edges import ring_corrections, ring_face_bases
-from elastoplast.bounds.equilibrate import element_tractions, mesh_faces
-from elastoplast.bounds.lift import element_maps
-from elastoplast.bounds.local import local_lower_bound
-from elastoplast.bounds.rings import face_bases, mesh_rings, resultant_rows, ring_batches
-from elastoplast.bounds.sweeps import element_imbalance
+from elastoplast.bounds.local.sweeps import ring_corrections, ring_face_bases
+from elastoplast.bounds.local.equilibrate import element_tractions, mesh_faces
+from elastoplast.bounds.local.lift import element_maps
+from elastoplast.bounds.local.construction import local_lower_bound
+from elastoplast.bounds.local.rings import face_bases, mesh_rings, resultant_rows, ring_batches
+from elastoplast.bounds.local.energy import element_imbalance
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -168,9 +169,9 @@ def test_repair_visits_only_the_rings_of_unbalanced_elements(monkeypatch):
     through an element above the tolerance and leaves every other facet bit for bit (the
     old passes visited every ring); 16 passes bring every element below 1e-14; with a
     tolerance of 0, never met, the passes stop once one no longer lowers the imbalance
-    (edges.STALL) instead of running all 1000."""
-    from elastoplast.bounds import edges, sweeps
-    from elastoplast.bounds.edges import ring_repair
+    (sweeps.STALL) instead of running all 1000."""
+    from elastoplast.bounds.local import energy, sweeps
+    from elastoplast.bounds.local.sweeps import ring_repair
 
     disc = _quarter()
     mesh = disc.mesh
@@ -180,7 +181,7 @@ def test_repair_visits_only_the_rings_of_unbalanced_elements(monkeypatch):
     e0 = int(np.argmax(np.isin(faces.face, np.arange(faces.n_interior)).all(axis=1)))  # an interior element
     noisy = t.copy()
     noisy[faces.face[e0]] += 1e-10 * np.abs(t).max() * np.random.default_rng(2).normal(size=(4, 3, 3))
-    above = element_imbalance(mesh.points, mesh.cells, maps, faces, noisy) > edges.VISIT * tol
+    above = element_imbalance(mesh.points, mesh.cells, maps, faces, noisy) > sweeps.VISIT * tol
     assert above[e0] and above.sum() <= 5  # e0 and its face neighbours
     reach = np.zeros(faces.nodes.shape[0], dtype=bool)
     for b in batches:
@@ -194,73 +195,114 @@ def test_repair_visits_only_the_rings_of_unbalanced_elements(monkeypatch):
     _, _, after = ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, tol, 16)
     assert after <= tol
     calls = []
-    imbalance = sweeps.element_imbalance
-    monkeypatch.setattr(sweeps, "element_imbalance", lambda *a: calls.append(1) or imbalance(*a))
+    imbalance = energy.element_imbalance
+    monkeypatch.setattr(energy, "element_imbalance", lambda *a: calls.append(1) or imbalance(*a))
     _, _, floor = ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 0.0, 1000)
     assert len(calls) < 100 and floor <= tol
 
 
 def test_repair_in_blocks_of_rings_is_the_repair_of_whole_colours(monkeypatch):
-    """The repair solves a colour's rings in blocks (edges.REPAIR_CHUNK, to bound its
+    """The repair solves a colour's rings in blocks (sweeps.REPAIR_CHUNK, to bound its
     temporaries). The rings of a colour share no facet and each ring's system is its own,
     so blocks of 3 rings give the tractions of whole colours bit for bit, on noise over
     every facet (every ring visited)."""
-    from elastoplast.bounds import edges
+    from elastoplast.bounds.local import sweeps
 
     disc = _quarter()
     mesh = disc.mesh
     maps, faces, free, batches, t = _self_balanced_tractions(disc)
     noisy = t + 1e-10 * np.abs(t).max() * np.random.default_rng(5).normal(size=t.shape) * free[:, None, :]
     assert max(b.E.shape[0] for b in batches) > 3
-    whole = edges.ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 1e-14, 2)
-    monkeypatch.setattr(edges, "REPAIR_CHUNK", 3)
-    blocks = edges.ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 1e-14, 2)
+    whole = sweeps.ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 1e-14, 2)
+    monkeypatch.setattr(sweeps, "REPAIR_CHUNK", 3)
+    blocks = sweeps.ring_repair(mesh.points, mesh.cells, maps, faces, noisy, batches, free, 1e-14, 2)
     assert whole[1] == blocks[1] and whole[2] == blocks[2] < whole[1]
     np.testing.assert_array_equal(whole[0], blocks[0])
 
 
-@pytest.mark.parametrize("case", ["cylinder", "quarter", "default"])
-def test_compiled_ring_step_is_the_numpy_step(monkeypatch, case):
-    """The sweeps' compiled step (ring_kernel.ring_newton) against the batched numpy step
-    (edges.ring_step), batch by batch from the same tractions, through two sweeps of a real
-    bound: the same new tractions and gains to round-off. The cases cover 2D and 3D, Γ0
-    rings whose pressure moves, symmetry planes (the boundary rings' null spaces of the
-    quarter sphere) and plastic elements (the default problem: the Newton curvature terms)."""
-    from elastoplast.bounds import edges
+def _ring_energies(b, maps, faces, t, volumes, state):
+    """Each ring's J (its elements' J_e by the numpy lift and energy, plus the obstacle term of
+    its Γ0 faces): what a ring's step may change."""
+    from elastoplast.bounds.local.energy import element_energy
+    from elastoplast.bounds.local.sweeps import lifted_stresses
+
+    m_r, ke = b.E.shape
+    flat = b.E.ravel()
+    d1 = maps.J.shape[1] + 1
+    sig = lifted_stresses(maps, faces, t, flat, state.TP[flat], state.scale[flat], state).reshape(flat.size, d1, d1, -1)
+    el = element_energy(sig, volumes[flat] / d1, state.MA, state.M, state.sy, state.H) * b.valid.ravel()
+    Fs = np.where(b.F >= 0, b.F, 0)
+    onc = state.contact[Fs] & (b.F >= 0)
+    lam = (state.psi[Fs] * t[Fs, :, d1 - 2]).sum(axis=2) * onc
+    return el.reshape(m_r, ke).sum(axis=1) + lam.sum(axis=1)
+
+
+@pytest.mark.parametrize("case", ["cylinder", "quarter", "default", "elastic"])
+def test_the_compiled_ring_step_lowers_each_ring_by_its_gain(monkeypatch, case):
+    """The sweeps' step (kernel.ring_newton), batch by batch through two sweeps of a real bound:
+    each ring's reported gain is its J before minus its J after, both evaluated here by the
+    numpy lift and J_e (energy.element_energy, not the kernel's compiled copy), and never
+    negative. In the elastic case (yield stress 1e7: J is quadratic) the step is Newton's full
+    step: each ring without a Γ0 face gains exactly the quadratic model's decrease
+    ``-g y - y H y / 2``, ``y`` the scaled solve of the numpy ring Hessian
+    (sweeps.ring_hessians) with the gradient of the descent's element-by-element kernel taken
+    through the ring frame (descent.RingFrame.adjoint): three codes that share no step. The
+    cases cover 2D and 3D, Γ0 rings whose pressure moves, symmetry planes (the boundary rings'
+    null spaces of the quarter sphere) and plastic elements (the default problem)."""
+    from elastoplast.bounds.local import sweeps
+    from elastoplast.bounds.local.descent import RingFrame, field_energy
     from elastoplast.fem.material import von_mises
 
     disc = {"cylinder": lambda: build(cylinder_dict((24, 12))), "quarter": _quarter,
-            "default": lambda: _shipped("sphere_block_3d", (6, 6, 3))}[case]()
+            "default": lambda: _shipped("sphere_block_3d", (6, 6, 3)),
+            "elastic": lambda: build(cylinder_dict((24, 12), yield_stress=1e7))}[case]()
     sol = ep.solve(disc, "newton")
-    compiled = edges.compiled_ring_step
-    seen = {"batches": 0, "contact": 0, "t": 0.0, "gain": 0.0}
+    compiled = sweeps.compiled_ring_step
+    seen = {"batches": 0, "contact": 0, "gained": 0, "balance": 0.0, "newton": 0.0, "checked": 0}
 
-    def both(b, points, maps, faces, rings, t, volumes, ctx):
-        t_numpy = t.copy()
-        g_numpy = edges.ring_step(b, points, maps, faces, rings, t_numpy, volumes, ctx)
-        g = compiled(b, points, maps, faces, rings, t, volumes, ctx)
-        scale = np.abs(t_numpy).max()
-        seen["t"] = max(seen["t"], np.abs(t - t_numpy).max() / scale)
-        seen["gain"] = max(seen["gain"], np.abs(g - g_numpy).max() / max(np.abs(g_numpy).max(), 1e-300))
+    def checked(b, points, maps, faces, rings, t, volumes, state):
+        before = _ring_energies(b, maps, faces, t, volumes, state)
+        if case == "elastic":
+            d = maps.J.shape[1]
+            _, g = field_energy(maps, faces, t, volumes, state)
+            gr = RingFrame([b], points, faces, rings, d).adjoint(g).reshape(b.E.shape[0], -1)
+            Hr = sweeps.ring_hessians(b, points, maps, faces, rings, t, volumes, state)
+            ds, Hs, dead = sweeps.scaled_system(Hr)
+            y = -ds * np.linalg.solve(Hs, (gr * ds)[..., None])[..., 0]
+            y[dead] = 0.0
+            model = -np.einsum("mr,mr->m", gr, y) - 0.5 * np.einsum("mr,mrs,ms->m", y, Hr, y)
+        gain = compiled(b, points, maps, faces, rings, t, volumes, state)
+        after = _ring_energies(b, maps, faces, t, volumes, state)
+        scale = np.abs(before).max()
+        seen["balance"] = max(seen["balance"], np.abs(before - after - gain).max() / scale)
+        assert (gain >= 0).all()
+        seen["gained"] += int((gain > 0).sum())
+        on_contact = (state.contact[np.where(b.F >= 0, b.F, 0)] & (b.F >= 0)).any(axis=1)
+        if case == "elastic":
+            inner = ~on_contact & (model > 1e-9 * scale)
+            seen["newton"] = max(seen["newton"], np.abs(gain[inner] - model[inner]).max(initial=0.0) / scale)
+            seen["checked"] += int(inner.sum())
         seen["batches"] += 1
-        seen["contact"] += int(ctx["contact"][b.F[b.F >= 0]].any())
-        return g
+        seen["contact"] += int(on_contact.any())
+        return gain
 
-    monkeypatch.setattr(edges, "compiled_ring_step", both)
+    monkeypatch.setattr(sweeps, "compiled_ring_step", checked)
     lb = local_lower_bound(disc, sol, n_sweeps=2, descent=0)
     assert lb.certified, lb.message
-    assert seen["batches"] > 0 and seen["contact"] > 0
-    assert seen["t"] < 1e-10 and seen["gain"] < 1e-8, seen
+    assert seen["batches"] > 0 and seen["contact"] > 0 and seen["gained"] > 0
+    assert seen["balance"] < 1e-11, seen
+    if case == "elastic":
+        assert seen["checked"] > 0 and seen["newton"] < 1e-9, seen
     if case == "default":  # the plastic branch ran
         assert (von_mises(np.asarray(sol.sigma)) > disc.material.yield_stress * (1 - 1e-9)).any()
 
 
 @pytest.mark.parametrize("m, least, per_thread", [(0, 8, 4), (7, 8, 4), (16, 8, 4), (101, 8, 4), (1000, 64, 1), (5, 1, 3)])
 def test_slices_cover_every_ring_once(m, least, per_thread):
-    """edges.in_slices hands the rings of a colour to the kernel threads in slices (several per
+    """sweeps.in_slices hands the rings of a colour to the kernel threads in slices (several per
     thread, so that a free thread takes the next): every ring exactly once, and one call
     where there is room for one slice only."""
-    from elastoplast.bounds.edges import KERNEL_THREADS, in_slices
+    from elastoplast.bounds.local.sweeps import KERNEL_THREADS, in_slices
 
     seen, calls = np.zeros(m, dtype=int), []
 
@@ -280,7 +322,7 @@ def test_slices_run_in_a_child_forked_after_the_pool_ran():
     waiting on threads that were not copied."""
     import multiprocessing as mp
 
-    from elastoplast.bounds.edges import in_slices
+    from elastoplast.bounds.local.sweeps import in_slices
 
     def kernel(lo, hi, out):
         out[lo:hi] += 1

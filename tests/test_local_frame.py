@@ -1,4 +1,4 @@
-"""The descent of the local field over all rings together (elastoplast/bounds/frame.py).
+"""The descent of the local field over all rings together (elastoplast/bounds/local/descent.py).
 
 Where the numbers come from:
 * the frame spans every self-equilibrated correction: the rank of the ring corrections
@@ -26,15 +26,15 @@ import pytest
 from conftest import build, cylinder_dict, sphere_quarter_dict
 
 import elastoplast as ep
-from elastoplast.bounds.edges import sweep_context
-from elastoplast.bounds.equilibrate import mesh_faces
-from elastoplast.bounds.frame import RingFrame, field_energy, pressure_projection
-from elastoplast.bounds.lift import element_maps
-from elastoplast.bounds.local import local_lower_bound
+from elastoplast.bounds.local.equilibrate import mesh_faces
+from elastoplast.bounds.local.descent import RingFrame, field_energy, pressure_projection
+from elastoplast.bounds.local.lift import element_maps
+from elastoplast.bounds.local.construction import local_lower_bound
 from elastoplast.bounds.equilibrium.bound import solve_lower_bound
-from elastoplast.bounds.rings import mesh_rings, ring_batches
+from elastoplast.bounds.local.rings import mesh_rings, ring_batches
+from elastoplast.bounds.local.state import sweep_state
 from elastoplast.bounds.static import psi_weights
-from elastoplast.bounds.sweeps import balance_matrices
+from elastoplast.bounds.local.energy import balance_matrices
 from elastoplast.references.solves import best_upper_bound
 from elastoplast.fem.material import von_mises
 
@@ -118,26 +118,26 @@ def test_apply_and_adjoint_are_transposes_and_unit_rows_are_adjoint_columns(quar
     assert np.abs(full[:, rest]).max() == 0.0
 
 
-def _context(disc, faces, cf):
-    """J's context with the problem's obstacle weights on the Γ0 facets."""
+def _state(disc, maps, faces, cf):
+    """J's sweep state with the problem's obstacle weights on the Γ0 facets."""
     d = disc.dim
     psi = np.zeros((faces.nodes.shape[0], d))
     psi[cf] = psi_weights(disc, disc.facet_topology).q
     contact = np.zeros(faces.nodes.shape[0], dtype=bool)
     contact[cf] = True
-    return sweep_context(disc.material, faces, disc.n_elements, d, None, psi, contact)
+    return sweep_state(disc.material, maps, faces, None, psi, contact)
 
 
 def test_field_energy_gradient_matches_central_differences(quarter):
     disc, maps, faces, cf, free, rings, frame = quarter
-    ctx = _context(disc, faces, cf)
+    state = _state(disc, maps, faces, cf)
     rng = np.random.default_rng(2)
     t = rng.normal(size=(faces.nodes.shape[0], 3, 3)) * disc.material.yield_stress * 1.5  # a plastic state
-    J, g = field_energy(maps, faces, t, disc.volumes, ctx)
+    J, g = field_energy(maps, faces, t, disc.volumes, state)
     dt = frame.apply(rng.normal(size=frame.size))
     h = 1e-4 * np.abs(t).max() / np.abs(dt).max()
-    Jp, _ = field_energy(maps, faces, t + h * dt, disc.volumes, ctx, gradient=False)
-    Jm, _ = field_energy(maps, faces, t - h * dt, disc.volumes, ctx, gradient=False)
+    Jp, _ = field_energy(maps, faces, t + h * dt, disc.volumes, state, gradient=False)
+    Jm, _ = field_energy(maps, faces, t - h * dt, disc.volumes, state, gradient=False)
     assert (Jp - Jm) / (2 * h) == pytest.approx(float((g * dt).sum()), rel=1e-6)
 
 
@@ -174,7 +174,7 @@ def test_the_descent_stops_early_when_its_gains_are_small_against_the_gap(quarte
     """With an upper bound far above (a huge gap) every window of steps gains little against
     it, so the descent stops after DESCENT_WINDOW steps; without one, or with an infinite one
     (no gap to compare with), it runs on."""
-    from elastoplast.bounds.frame import DESCENT_WINDOW
+    from elastoplast.bounds.local.descent import DESCENT_WINDOW
 
     disc = quarter[0]
     sol = ep.solve(disc, "newton")
@@ -192,7 +192,7 @@ def test_the_pressures_held_in_one_step_are_held_from_the_start_of_the_next(quar
     holding a positive one would be a needless restriction), some step starts with the pairs
     the last one held (the carried set: a step with nothing carried calls no projection
     before its first direction), and the set is found afresh every HOLD_STEPS steps."""
-    import elastoplast.bounds.frame as fr
+    import elastoplast.bounds.local.descent as fr
 
     disc = quarter[0]
     sol = ep.solve(disc, "newton")
@@ -223,21 +223,20 @@ def test_the_pressures_held_in_one_step_are_held_from_the_start_of_the_next(quar
 
 def test_field_energy_is_the_sum_of_the_element_energies(quarter):
     """The compiled J of the descent against the batched numpy pieces of the sweeps (the lift
-    ``edges.lifted_stresses`` and ``sweeps.element_energy``) plus the obstacle term, at a plastic state."""
-    from elastoplast.bounds.edges import element_context, lifted_stresses
-    from elastoplast.bounds.sweeps import element_energy
+    ``sweeps.lifted_stresses`` and ``energy.element_energy``) plus the obstacle term, at a plastic state."""
+    from elastoplast.bounds.local.sweeps import lifted_stresses
+    from elastoplast.bounds.local.energy import element_energy
 
     disc, maps, faces, cf, free, rings, frame = quarter
-    ctx = _context(disc, faces, cf)
+    state = _state(disc, maps, faces, cf)
     rng = np.random.default_rng(4)
     t = rng.normal(size=(faces.nodes.shape[0], 3, 3)) * disc.material.yield_stress * 1.5
-    J, _ = field_energy(maps, faces, t, disc.volumes, ctx, gradient=False)
-    element_context(maps, faces, ctx)
+    J, _ = field_energy(maps, faces, t, disc.volumes, state, gradient=False)
     n = disc.n_elements
-    sig = lifted_stresses(maps, faces, t, np.arange(n), ctx["TP"], ctx["scale"], ctx).reshape(n, 4, 4, -1)
-    el = element_energy(sig, disc.volumes / 4, ctx["MA"], ctx["M"], ctx["sy"], ctx["H"])
-    assert el.max() > 0 and (von_mises(sig) > ctx["sy"]).any()
-    assert J == pytest.approx(el.sum() + (ctx["psi"][cf] * t[cf, :, 2]).sum(), rel=1e-12)
+    sig = lifted_stresses(maps, faces, t, np.arange(n), state.TP, state.scale, state).reshape(n, 4, 4, -1)
+    el = element_energy(sig, disc.volumes / 4, state.MA, state.M, state.sy, state.H)
+    assert el.max() > 0 and (von_mises(sig) > state.sy).any()
+    assert J == pytest.approx(el.sum() + (state.psi[cf] * t[cf, :, 2]).sum(), rel=1e-12)
 
 
 def test_the_descent_goes_on_where_held_rows_nearly_depend():
@@ -272,7 +271,7 @@ def test_a_held_pressure_moving_by_round_off_does_not_cap_the_step():
     little (1e-6) and a held one by 1e-17 is taken whole (it was capped to 0 and stopped the
     descent after 3 steps on an adapted cylinder mesh); a held pressure that really moves
     (1e-6, at zero) still caps it to 0, as does an unheld one at zero."""
-    from elastoplast.bounds.frame import pressure_cap
+    from elastoplast.bounds.local.descent import pressure_cap
 
     t = np.zeros((3, 2, 2))
     t[:, :, 1] = [[0.0, 5.0], [5.0, 5.0], [5.0, 0.0]]
@@ -300,7 +299,7 @@ def test_a_pressure_the_cap_brings_to_zero_is_held_from_the_next_step(monkeypatc
     Checked on the cylinder at 1,600 triangles (100 steps, where 6 pressures reach zero so; the
     rule before the change held none of them): every pressure a step took to zero is among
     those the next step starts holding."""
-    import elastoplast.bounds.frame as fr
+    import elastoplast.bounds.local.descent as fr
     from elastoplast.references.solves import LOCAL_SOLVE_TOL
 
     disc = build(cylinder_dict(divisions=(40, 20)))

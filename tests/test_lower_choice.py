@@ -24,7 +24,7 @@ from elastoplast.adapt.records import AdaptOptions
 from elastoplast.references.solves import LOCAL_SOLVE_TOL, local_solution, solve_at
 from elastoplast.references.certified import certified_bounds
 from elastoplast.bounds.bracket import check_lower_bound_fits, local_descent, lower_bound
-from elastoplast.bounds.local import DESCENT_STEPS
+from elastoplast.bounds.local.construction import DESCENT_STEPS
 from elastoplast.bounds.lower import AUTO_GLOBAL_MAX_ELEMENTS, LowerBoundOptions, lower_bound_kind
 from elastoplast.cli.main import main
 from elastoplast.errors import InputError
@@ -170,7 +170,7 @@ def test_warm_started_solve_at_another_force(cylinder):
 
 
 def test_the_local_bracket_holds_and_overlaps_the_global_one(cylinder, monkeypatch):
-    import elastoplast.bounds.local as local_module
+    import elastoplast.bounds.local.construction as local_module
 
     disc, sol = cylinder
     seen, uppers = [], []

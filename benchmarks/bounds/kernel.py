@@ -2,13 +2,13 @@
 
     python benchmarks/bounds/kernel.py [--quick] [--out DIR] [--report]
 
-The local bound's sweeps are a compiled Newton step per ring (``ring_kernel.ring_newton``);
+The local bound's sweeps are a compiled Newton step per ring (``kernel.ring_newton``);
 their work is one pass over each element of each ring (a *visit*: in 3D every tetrahedron
 is visited once per edge, six times per full sweep). Per size of the default 3D problem
 (12,288 and 98,304 tetrahedra; ``--quick``: 1,536 and 12,288), in its own process: the P1
 solve, then one sweep of the local bound with every call of the step recorded; the recorded
 calls are then replayed ``ROUNDS`` times, alternately in one thread (each batch in one call)
-and in ``edges.KERNEL_THREADS`` threads (``edges.in_slices``, as the sweeps run them), each
+and in ``sweeps.KERNEL_THREADS`` threads (``sweeps.in_slices``, as the sweeps run them), each
 round from the same tractions. Reported: microseconds per visit (median over the rounds),
 and the two-thread gain, the median of the paired ratios one thread / threads.
 
@@ -43,44 +43,44 @@ ROUNDS = 5
 
 def record_sweep(disc, sol) -> tuple[list, np.ndarray, int]:
     """The calls of the compiled step in one sweep of the local bound: ``(calls, t, it)``, each call
-    ``(m, args)`` with its arguments by reference (the kernel writes only ``args[it]``, the
-    tractions, and its gains), ``t`` the tractions before the sweep's first call."""
-    from elastoplast.bounds import edges
-    from elastoplast.bounds.local import local_lower_bound
-    from elastoplast.bounds.ring_kernel import ring_newton
+    ``(m, args)`` with its arguments by reference (the kernel writes only the tractions, the first
+    of the group ``args[it]``, and its gains), ``t`` the tractions before the sweep's first call."""
+    from elastoplast.bounds.local import sweeps
+    from elastoplast.bounds.local.construction import local_lower_bound
+    from elastoplast.bounds.local.kernel import ring_newton
 
     calls, first = [], {}
-    it = ring_newton.py_func.__code__.co_varnames.index("t") - 2
-    original = edges.in_slices
+    it = ring_newton.py_func.__code__.co_varnames.index("field") - 2
+    original = sweeps.in_slices
 
     def recording(kernel, m, args, **slicing):
         if kernel is ring_newton:
-            first.setdefault("t", args[it].copy())
+            first.setdefault("t", args[it][0].copy())
             calls.append((m, list(args)))
         return original(kernel, m, args, **slicing)
 
-    edges.in_slices = recording
+    sweeps.in_slices = recording
     try:
         local_lower_bound(disc, sol, n_sweeps=1, descent=0)
     finally:
-        edges.in_slices = original
+        sweeps.in_slices = original
     return calls, first["t"], it
 
 
 def replay(calls, t0: np.ndarray, it: int, threads: bool) -> float:
     """Seconds in the kernel for one replay of the recorded calls from the tractions ``t0``."""
-    from elastoplast.bounds import edges
-    from elastoplast.bounds.ring_kernel import ring_newton
+    from elastoplast.bounds.local import sweeps
+    from elastoplast.bounds.local.kernel import ring_newton
 
     t = t0.copy()
     total = 0.0
     for m, args in calls:
         args = list(args)
-        args[it] = t
+        args[it] = (t,) + tuple(args[it][1:])
         args[-1] = np.zeros(m)
         start = time.perf_counter()
         if threads:
-            edges.in_slices(ring_newton, m, args, least=edges.RING_SLICE, per_thread=edges.RING_SLICES_PER_THREAD)
+            sweeps.in_slices(ring_newton, m, args, least=sweeps.RING_SLICE, per_thread=sweeps.RING_SLICES_PER_THREAD)
         else:
             ring_newton(0, m, *args)
         total += time.perf_counter() - start
@@ -122,7 +122,7 @@ def control_gain(rounds: int = ROUNDS) -> dict:
 
 def run_one(divisions) -> dict:
     import elastoplast as ep
-    from elastoplast.bounds import edges
+    from elastoplast.bounds.local import sweeps
 
     disc = shipped_problem(PROBLEM, divisions)
     sol = ep.solve(disc, "newton")
@@ -135,7 +135,7 @@ def run_one(divisions) -> dict:
         many.append(replay(calls, t0, it, threads=True))
     one, many = np.array(one), np.array(many)
     return {"n_elements": int(disc.n_elements), "rings": int(sum(m for m, _ in calls)), "visits": visits,
-            "batches": len(calls), "threads": edges.KERNEL_THREADS,
+            "batches": len(calls), "threads": sweeps.KERNEL_THREADS,
             "us_per_visit_one": 1e6 * float(np.median(one)) / visits,
             "us_per_visit_threads": 1e6 * float(np.median(many)) / visits,
             "thread_gain": float(np.median(one / many)), "one_s": one.tolist(), "threads_s": many.tolist(),

@@ -37,7 +37,7 @@ QUICK = {"cylinder_2d": [(24, 12)], "sphere_quarter_3d": [(3, 3, 3)]}
 #: the local bounds run: ``S`` sweeps alone, or ``S+D`` sweeps then at most D descent steps over all rings
 #: (the defaults of local_lower_bound: 64+300 in 2D and 3D), ``u`` with the upper bound given, so that the
 #: descent also stops once it gains little against the gap (as ``bounds`` and ``adapt`` run it), ``@A`` the
-#: share of the revisit rule (edges.ACTIVE_SHARE of the dimension; default: the package's). ``32@0.05`` is
+#: share of the revisit rule (sweeps.ACTIVE_SHARE of the dimension; default: the package's). ``32@0.05`` is
 #: the 3D sweeps setting before commit b504e77
 VARIANTS = {"cylinder_2d": ("64", "64+300", "64+300u"), "sphere_quarter_3d": ("32@0.05", "64", "64+100", "64+300u"),
             "sphere_block_3d": ("32@0.05", "64", "64+100", "64+300u")}
@@ -47,7 +47,7 @@ NO_GLOBAL = {("sphere_block_3d", (32, 32, 16))}
 
 def run_one(problem: str, divisions, what: str) -> dict:
     import elastoplast as ep
-    from elastoplast.bounds.local import local_lower_bound
+    from elastoplast.bounds.local.construction import local_lower_bound
     from elastoplast.bounds.equilibrium.bound import solve_lower_bound
     from elastoplast.references.solves import best_upper_bound
 
@@ -72,9 +72,9 @@ def run_one(problem: str, divisions, what: str) -> dict:
             given = descent.endswith("u")
             descent = descent.rstrip("u")
             if share:
-                from elastoplast.bounds import edges
+                from elastoplast.bounds.local import sweeps
 
-                edges.ACTIVE_SHARE = {**edges.ACTIVE_SHARE, disc.dim: float(share)}
+                sweeps.ACTIVE_SHARE = {**sweeps.ACTIVE_SHARE, disc.dim: float(share)}
             lb = local_lower_bound(disc, sol, int(sweeps), descent=int(descent or 0), upper=up.Pi if given else None)
             out["local_peak_rss_mb"] = peak_memory() / 2**20
             out.update(sweeps=int(sweeps), descent=int(descent or 0), active_share=edges_share(disc.dim), message=lb.message, time_s=time.perf_counter() - t1, lower=lb.lower, upper=up.Pi, upper_certified=up.certified,
@@ -84,15 +84,15 @@ def run_one(problem: str, divisions, what: str) -> dict:
 
 
 def edges_share(dim: int) -> float:
-    from elastoplast.bounds import edges
+    from elastoplast.bounds.local import sweeps
 
-    return float(edges.ACTIVE_SHARE[dim])
+    return float(sweeps.ACTIVE_SHARE[dim])
 
 
 def report(results: dict) -> str:
     lines = ["Each run in its own process; seconds (wall clock); `local MB` is the peak of the process that ran the",
              "newton solve, the upper bound and the local bound (`newton MB` the solve alone).", "",
-             "`sweeps` is S sweeps, S+D with at most D descent steps after them, @A the revisit share (edges.ACTIVE_SHARE) where",
+             "`sweeps` is S sweeps, S+D with at most D descent steps after them, @A the revisit share (sweeps.ACTIVE_SHARE) where",
              "it is not the package's (3D: 1.0; 0.05 before), u: the upper bound given (the descent then also stops once it",
              "gains little against the gap, as `bounds` and `adapt` run it).",
              "`s/sweep` is the sweeps' time over their number (at most that many: after the first, a sweep visits only the",

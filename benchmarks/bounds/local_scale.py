@@ -39,7 +39,7 @@ QUICK = [(8, 8, 4), (16, 16, 8)]
 def run_one(divisions, what: str) -> dict:
     import elastoplast as ep
     from elastoplast.references.solves import LOCAL_SOLVE_TOL
-    from elastoplast.bounds.local import local_lower_bound
+    from elastoplast.bounds.local.construction import local_lower_bound
     from elastoplast.references.solves import best_upper_bound
 
     disc = shipped_problem(PROBLEM, divisions)

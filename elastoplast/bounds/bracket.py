@@ -263,11 +263,11 @@ def check_lower_bound_fits(disc: Discretization, options=None, factor: float = 1
 
 def local_descent(disc: Discretization, options) -> int:
     """The descent steps the local bound takes on ``disc``: ``options.descent`` (None:
-    :data:`~elastoplast.bounds.local.DESCENT_STEPS`), or 0, with a warning, where its
+    :data:`~elastoplast.bounds.local.construction.DESCENT_STEPS`), or 0, with a warning, where its
     estimate with the descent (:func:`~elastoplast.bounds.lower.lower_bound_bytes`) exceeds
     the memory available now (where even the sweeps alone do not fit,
     :func:`check_lower_bound_fits` refuses the mesh before any work)."""
-    from elastoplast.bounds.local import DESCENT_STEPS
+    from elastoplast.bounds.local.construction import DESCENT_STEPS
     from elastoplast.bounds.lower import lower_bound_bytes
     from elastoplast.limits import available_memory, format_bytes
 
@@ -292,7 +292,7 @@ def lower_bound(disc: Discretization, solution=None, options=None, *, progress: 
     :func:`~elastoplast.bounds.lower.lower_bound_kind`): the optimum of the equilibrium
     element (:func:`~elastoplast.bounds.equilibrium.bound.solve_lower_bound`; ``solution`` unused), or the
     local field built from ``solution``, a P1 solution of ``disc``
-    (:func:`~elastoplast.bounds.local.local_lower_bound`; H > 0). Either is a
+    (:func:`~elastoplast.bounds.local.construction.local_lower_bound`; H > 0). Either is a
     :class:`~elastoplast.bounds.lower.LowerBound`; its ``solver`` is ``"local"`` for the local
     bound. ``progress(fraction, what)`` is called as the bound advances; ``upper``, the Pi of
     an upper bound on ``disc``, lets the local bound's descent stop once it gains little
@@ -316,7 +316,7 @@ def lower_bound(disc: Discretization, solution=None, options=None, *, progress: 
         expect(solution, Solution, "solution", "ep.solve(disc, method)")
         if progress is not None:
             progress(0.0, f"lower bound: local field ({disc.n_elements:,} elements)")
-        from elastoplast.bounds.local import local_lower_bound
+        from elastoplast.bounds.local.construction import local_lower_bound
 
         descent = local_descent(disc, options)
         lower = local_lower_bound(disc, solution, descent=descent, progress=progress, upper=upper)

@@ -55,11 +55,11 @@ class LowerBoundOptions(SolverOptions):
 
     ``kind``: which lower bound :func:`~elastoplast.bounds.bracket.lower_bound` computes:
     ``"global"`` (:func:`~elastoplast.bounds.equilibrium.bound.solve_lower_bound`, the optimum of the equilibrium element; the
-    only one with H = 0), ``"local"`` (:func:`~elastoplast.bounds.local.local_lower_bound`,
+    only one with H = 0), ``"local"`` (:func:`~elastoplast.bounds.local.construction.local_lower_bound`,
     built from the P1 solution, H > 0) or ``"auto"`` (:func:`lower_bound_kind`). The
     options above but ``tol`` are the global program's; its size and memory refusals
     (:func:`check_lower_bound_size`) apply to it alone. ``descent``: the local bound's
-    steps over all rings after its sweeps (None: :data:`~elastoplast.bounds.local.DESCENT_STEPS`).
+    steps over all rings after its sweeps (None: :data:`~elastoplast.bounds.local.construction.DESCENT_STEPS`).
     """
 
     tol: float = option(CERTIFY_TOL, float, "tolerance of the admissibility certificate", lo=TIGHTEST_TOL, hi=1e-8)

@@ -149,7 +149,7 @@ def _add_solver_arguments(p: argparse.ArgumentParser, time_help: str = "wall-clo
 
 
 def _add_lower_argument(p: argparse.ArgumentParser) -> None:
-    from elastoplast.bounds.local import DESCENT_STEPS
+    from elastoplast.bounds.local.construction import DESCENT_STEPS
     from elastoplast.bounds.lower import AUTO_GLOBAL_MAX_ELEMENTS, LOWER_BOUND_KINDS
 
     p.add_argument("--lower", choices=LOWER_BOUND_KINDS,

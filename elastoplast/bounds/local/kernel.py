@@ -1,19 +1,16 @@
 """The ring sweep's Newton step compiled (numba): ring by ring, nothing batched in memory.
 
-:func:`~elastoplast.bounds.edges.ring_step` writes the step as batched numpy over every
-element of a colour: each product makes an ``(N, ...)`` temporary of a few dozen entries
-per element, and the step is bound by that memory traffic (profile at 12,288 tetrahedra:
-no line above 20% of the step; the largest, the ring faces' bases and the element
-Hessians' temporaries). :func:`ring_newton` does the same arithmetic in compiled loops, one
-ring at a time, with the ring faces' bases computed in place
-(:mod:`elastoplast.bounds.ring_kernel_bases`) and the element Hessian's elastic part from
-the reference operators packed by symmetry (:func:`~elastoplast.bounds.edges.packed_hessian_operator`).
-It releases the GIL, so :func:`~elastoplast.bounds.edges.compiled_ring_step` runs slices of
+The step is written once, here, as compiled loops one ring at a time (a batched numpy form
+over every element of a colour was bound by its ``(N, ...)`` temporaries' memory traffic,
+and is gone): the ring faces' bases computed in place
+(:mod:`elastoplast.bounds.local.kernel_bases`) and the element Hessian's elastic part from
+the reference operators packed by symmetry (:func:`~elastoplast.bounds.local.sweeps.packed_hessian_operator`).
+It releases the GIL, so :func:`~elastoplast.bounds.local.sweeps.compiled_ring_step` runs slices of
 one colour in threads (the rings of a colour share no element and no facet: their writes
-into ``t`` never meet). The numpy step stays: the descent's preconditioner takes the rings'
-systems from it, and the tests hold the two steps to each other.
+into ``t`` never meet). The descent's preconditioner takes the rings' Hessians from the numpy
+:func:`~elastoplast.bounds.local.sweeps.ring_hessians`.
 
-Notation as in :mod:`elastoplast.bounds.edges`: per element ``e`` of a ring, its two facets
+Notation as in :mod:`elastoplast.bounds.local.sweeps`: per element ``e`` of a ring, its two facets
 through the entity (``lf``), their positions among the ring faces (``jpos``) and
 orientations (``o``); ``B (kf, d d, na + nq)`` the ring faces' bases; the element's lift
 ``sig (s b, k)`` at its sub-element vertices from the outward vertex tractions, with the
@@ -27,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from elastoplast.bounds.ring_kernel_bases import FAST, ring_bases, solve_small
+from elastoplast.bounds.local.kernel_bases import FAST, ring_bases, solve_small
 
 SQRT_3_2 = np.sqrt(1.5)
 
@@ -77,7 +74,10 @@ def _von_mises(sig, dev):
 
 @njit(cache=True, fastmath=FAST)
 def _energy(sig, w, A, M, sy, H):
-    """``J_e`` of sub-vertex stresses ``sig (d1 d1, k)`` (sub volume ``w``)."""
+    """``J_e`` of sub-vertex stresses ``sig (d1 d1, k)`` (sub volume ``w``): the compiled twin of
+    :func:`elastoplast.bounds.local.energy.element_energy` (the one numpy J_e), kept because the
+    ring step and the descent's energy call it per element inside compiled loops;
+    ``tests/test_local_frame.py::test_field_energy_is_the_sum_of_the_element_energies`` holds the two to each other."""
     d1 = M.shape[0]
     k = sig.shape[1]
     dev = np.empty(k)
@@ -158,7 +158,7 @@ def _stress_gradient(e, sq, w, A, M, sy, H, Dv, TP, gs, As, vm, eta, etaMs, nrm,
 @njit(cache=True, fastmath=FAST, nogil=True)
 def field_energy_kernel(lo, hi, t, face, slot, sign, Jinv, scale, Lfull, TP, base, volumes, A, M, sy, H, Dv,
                         gradient, J_el, g_el):
-    """Elements ``lo`` to ``hi`` of the lifted field's J (:func:`~elastoplast.bounds.frame.field_energy`):
+    """Elements ``lo`` to ``hi`` of the lifted field's J (:func:`~elastoplast.bounds.local.descent.field_energy`):
     ``J_el (n,)`` each element's ``J_e``, and, with ``gradient``, ``g_el (n, d1, d1, d)`` its gradient
     in the element's outward vertex tractions (the caller adds them into the facets)."""
     d = Jinv.shape[1]
@@ -215,10 +215,15 @@ def add_element_gradients(g_el, face, slot, sign, g):
 
 
 @njit(cache=True, fastmath=FAST)
-def _one_ring(ir, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, point, ell, ent, t, face, slot, sign,
-              Jinv, scale, TP, base, volumes,
-              A, M, sy, H, Dv, Lfull, Lsel, LselT, HQ, pairs, tri, AV, contact, psi, steps, ridge, lam_margin, gain):
-    """Ring ``ir`` of :func:`ring_newton`."""
+def _one_ring(ir, batch, geometry, field, material, operators, obstacle, control, gain):
+    """Ring ``ir`` of :func:`ring_newton` (its arguments' groups unpacked here)."""
+    E, valid, le, lf, jpos, o, F, s, end, Nb, na = batch
+    points, nodes, point, ell, ent = geometry
+    t, face, slot, sign, Jinv, scale, TP, base, volumes = field
+    A, M, sy, H, Dv = material
+    Lfull, Lsel, LselT, HQ, pairs, tri, AV = operators
+    contact, psi = obstacle
+    steps, ridge, lam_margin = control
     m_r, ke = E.shape
     kf = F.shape[1]
     d = Jinv.shape[1]
@@ -492,14 +497,18 @@ def _one_ring(ir, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, p
 
 
 @njit(cache=True, fastmath=FAST, nogil=True)
-def ring_newton(lo, hi, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, point, ell, ent, t, face, slot, sign,
-                Jinv, scale, TP, base, volumes,
-                A, M, sy, H, Dv, Lfull, Lsel, LselT, HQ, pairs, tri, AV, contact, psi, steps, ridge, lam_margin, gain):
-    """One Newton step of J on each ring (``E (m, ke)`` ...; see :func:`~elastoplast.bounds.edges.ring_step`,
-    whose arithmetic this repeats), the first step length of ``steps`` that lowers ``J_ring`` written
-    into ``t``; ``gain (m,)`` receives each ring's decrease of J. Rings ``lo`` to ``hi`` only, without the
-    GIL: the caller runs slices of one colour in threads (its rings share no element and no facet)."""
+def ring_newton(lo, hi, batch, geometry, field, material, operators, obstacle, control, gain):
+    """One Newton step of J on each ring, the first step length of ``steps`` that lowers ``J_ring``
+    written into ``t``; ``gain (m,)`` receives each ring's decrease of J. Rings ``lo`` to ``hi`` only,
+    without the GIL: the caller runs slices of one colour in threads (its rings share no element and
+    no facet). The arguments in groups (tuples; notation in the module docstring):
+    ``batch (E, valid, le, lf, jpos, o, F, s, end, Nb, na)`` the rings (a
+    :class:`~elastoplast.bounds.local.rings.RingBatch` and ``na``, the face bases' width);
+    ``geometry (points, nodes, point, ell, ent)`` what their face bases are built from;
+    ``field (t, face, slot, sign, Jinv, scale, TP, base, volumes)`` the tractions (written) and
+    what lifts them; ``material (A, M, sy, H, Dv)``; ``operators (Lfull, Lsel, LselT, HQ, pairs,
+    tri, AV)`` the reference operators (:func:`~elastoplast.bounds.local.sweeps.packed_hessian_operator`);
+    ``obstacle (contact, psi)``; ``control (steps, ridge, lam_margin)``. The Hessian it assembles
+    per ring is the numpy :func:`~elastoplast.bounds.local.sweeps.ring_hessians`'."""
     for ir in range(lo, hi):
-        _one_ring(ir, E, valid, le, lf, jpos, o, F, s, end, Nb, na, points, nodes, point, ell, ent, t, face, slot, sign,
-                  Jinv, scale, TP, base, volumes,
-                  A, M, sy, H, Dv, Lfull, Lsel, LselT, HQ, pairs, tri, AV, contact, psi, steps, ridge, lam_margin, gain)
+        _one_ring(ir, batch, geometry, field, material, operators, obstacle, control, gain)

@@ -21,7 +21,7 @@ a linear normal traction and a rotational one for the moment), both in closed fo
 whose free traction components (symmetry and clamped facets; none on free and Γ0 facets)
 restrict ``rho``: a small null space per boundary ring (SVD, once). This module builds
 the rings, their colours (no element holds two entities of one colour) and the bases;
-:mod:`elastoplast.bounds.edges` sweeps them."""
+:mod:`elastoplast.bounds.local.sweeps` sweeps them."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from itertools import combinations
 
 import numpy as np
 
-from elastoplast.bounds.equilibrate import Faces, segment_ranges
+from elastoplast.bounds.local.equilibrate import Faces, segment_ranges
 
 #: singular values of a boundary ring's scaled constraint rows below this (relative) span its corrections
 NULL_RCOND = 1e-10

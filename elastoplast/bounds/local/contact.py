@@ -25,8 +25,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from elastoplast.bounds.equilibrate import Faces
-from elastoplast.bounds.lift import MANDEL_PAIRS, mandel_to_tensor
+from elastoplast.bounds.local.equilibrate import Faces
+from elastoplast.bounds.local.lift import MANDEL_PAIRS, mandel_to_tensor
 from elastoplast.linalg.direct import project_affine
 from elastoplast.bounds.static import mass_matrix
 from elastoplast.errors import InputError

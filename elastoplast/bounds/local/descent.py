@@ -1,6 +1,6 @@
 """Descent of the local field over every ring correction at once (docs/bounds.md, "a local field").
 
-Ring sweeps (:mod:`elastoplast.bounds.edges`) minimise J one ring at a time. In plastic
+Ring sweeps (:mod:`elastoplast.bounds.local.sweeps`) minimise J one ring at a time. In plastic
 zones that is a poor method: the rings' moves are strongly coupled there, and the sweeps
 stall far above the optimum of the field's own space (on the quarter sphere at 162
 tetrahedra, 512 sweeps stop at J = 79.8 while the optimum over the same self-equilibrated
@@ -21,11 +21,12 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from elastoplast.bounds.edges import (LAM_MARGIN, element_context, in_slices, ring_corrections, ring_face_bases,
-                                      ring_step, scaled_system)
-from elastoplast.bounds.equilibrate import Faces, segment_ranges
-from elastoplast.bounds.lift import ElementMaps
-from elastoplast.bounds.rings import RingBatch
+from elastoplast.bounds.local.equilibrate import Faces, segment_ranges
+from elastoplast.bounds.local.lift import ElementMaps
+from elastoplast.bounds.local.rings import RingBatch
+from elastoplast.bounds.local.state import SweepState
+from elastoplast.bounds.local.sweeps import (LAM_MARGIN, in_slices, ring_corrections, ring_face_bases, ring_hessians,
+                                             scaled_system)
 
 #: L-BFGS pairs kept
 MEMORY = 10
@@ -138,14 +139,15 @@ class RingFrame:
 
 
 class RingPreconditioner:
-    """``v -> sum_r H_r^-1 v_r``: each ring's Hessian in its unknowns (:func:`~elastoplast.bounds.edges.ring_step`),
+    """``v -> sum_r H_r^-1 v_r``: each ring's Hessian in its unknowns (:func:`~elastoplast.bounds.local.sweeps.ring_hessians`),
     Jacobi-scaled with a relative ridge as the sweeps solve it, inverted once at ``t``
     (an additive Schwarz preconditioner of the rings)."""
 
-    def __init__(self, frame: RingFrame, points, maps: ElementMaps, faces: Faces, rings, t, volumes, ctx: dict):
+    def __init__(self, frame: RingFrame, points, maps: ElementMaps, faces: Faces, rings, t, volumes,
+                 state: SweepState):
         self.blocks = []
         for b, B, na, nq, off in frame.parts:
-            _, Hr = ring_step(b, points, maps, faces, rings, t, volumes, ctx, system_only=True)
+            Hr = ring_hessians(b, points, maps, faces, rings, t, volumes, state)
             ds, Hs, dead = scaled_system(Hr)
             self.blocks.append((off, Hr.shape[0], Hr.shape[1], np.where(dead, 0.0, ds), np.linalg.inv(Hs)))
 
@@ -157,39 +159,33 @@ class RingPreconditioner:
         return out
 
 
-def field_energy(maps: ElementMaps, faces: Faces, t: np.ndarray, volumes: np.ndarray, ctx: dict,
+def field_energy(maps: ElementMaps, faces: Faces, t: np.ndarray, volumes: np.ndarray, state: SweepState,
                  gradient: bool = True):
     """``(J, dJ/dt)`` of the facet tractions ``t (F, d, d)``: the lifted field's J (elements
     and the obstacle term ``sum psi lam`` of the Γ0 facets) and its gradient (or None), element
-    by element in compiled loops (:func:`~elastoplast.bounds.ring_kernel.field_energy_kernel`,
-    slices of the elements in threads). The per-mesh pieces (double Piola maps, facet scales,
-    the per-element buffers) are kept in ``ctx`` after the first call."""
-    from elastoplast.bounds.ring_kernel import add_element_gradients, field_energy_kernel
+    by element in compiled loops (:func:`~elastoplast.bounds.local.kernel.field_energy_kernel`,
+    slices of the elements in threads), into ``state``'s per-element buffers."""
+    from elastoplast.bounds.local.kernel import add_element_gradients, field_energy_kernel
 
     n, d = maps.J.shape[:2]
-    d1 = d + 1
-    element_context(maps, faces, ctx)
-    if "J_el" not in ctx:
-        ctx["J_el"] = np.empty(n)
-        ctx["g_el"] = np.zeros((n, d1, d1, d))
-    args = [t, faces.face, faces.slot, ctx["sign"], maps.Jinv, ctx["scale"], ctx["ops"][0],
-            ctx["TP"], ctx["base"], volumes, ctx["A"], ctx["M"], float(ctx["sy"]), float(ctx["H"]), ctx["Dv"],
-            gradient, ctx["J_el"], ctx["g_el"]]
+    args = [t, faces.face, faces.slot, state.sign, maps.Jinv, state.scale, state.ops.Lfull,
+            state.TP, state.base, volumes, state.A, state.M, state.sy, state.H, state.Dv,
+            gradient, state.J_el, state.g_el]
     in_slices(field_energy_kernel, n, [np.require(a, requirements=("C", "W")) if isinstance(a, np.ndarray) else a
                                        for a in args], least=1024)
-    c = ctx["contact"]
-    J = float(ctx["J_el"].sum()) + float((ctx["psi"][c] * t[c, :, d - 1]).sum())
+    c = state.contact
+    J = float(state.J_el.sum()) + float((state.psi[c] * t[c, :, d - 1]).sum())
     if not gradient:
         return J, None
     g = np.zeros_like(t)
-    add_element_gradients(ctx["g_el"], faces.face, faces.slot, ctx["sign"], g)
-    g[c, :, d - 1] += ctx["psi"][c]
+    add_element_gradients(state.g_el, faces.face, faces.slot, state.sign, g)
+    g[c, :, d - 1] += state.psi[c]
     return J, g
 
 
 def pressure_cap(t: np.ndarray, dt: np.ndarray, contact: np.ndarray, held: np.ndarray) -> float:
     """The largest step along ``dt`` (at most 1) that keeps the Γ0 pressures ``>= 0`` (short
-    by :data:`~elastoplast.bounds.edges.LAM_MARGIN`), the ``held`` ones (:func:`pressure_projection`: they move by round-off) aside."""
+    by :data:`~elastoplast.bounds.local.sweeps.LAM_MARGIN`), the ``held`` ones (:func:`pressure_projection`: they move by round-off) aside."""
     d = t.shape[2]
     lam, dlam = t[contact, :, d - 1], dt[contact, :, d - 1]
     down = dlam < 0
@@ -271,7 +267,7 @@ def preconditioner_scale(S: list, Y: list, H0) -> float:
     return float(S[-1] @ Y[-1]) / float(Y[-1] @ H0(Y[-1])) if S else 1.0
 
 
-def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes: np.ndarray, ctx: dict,
+def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes: np.ndarray, state: SweepState,
                   frame: RingFrame, iterations: int, progress=None, upper: float | None = None) -> tuple[np.ndarray, int]:
     """At most ``iterations`` L-BFGS steps on ``J(t + B y)`` (module docstring) with the
     rings' Hessians as the initial inverse (:class:`RingPreconditioner`, rebuilt when the
@@ -284,7 +280,7 @@ def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray,
     (``Pi``; the gap is ``upper + J``), once the last :data:`DESCENT_WINDOW` steps lowered J
     by less than :data:`DESCENT_GAP_SHARE` of the gap each on average. Returns the new
     tractions and the steps taken; ``progress(i)`` is called after step i."""
-    J, g = field_energy(maps, faces, t, volumes, ctx)
+    J, g = field_energy(maps, faces, t, volumes, state)
     gy = frame.adjoint(g)
     S, Y = [], []
     taken = 0
@@ -294,18 +290,18 @@ def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray,
         upper = None  # no gap to measure the gains against
     for it in range(iterations):
         if not S:  # (again) the rings' Hessians at this field
-            H0 = RingPreconditioner(frame, points, maps, faces, rings, t, volumes, ctx)
-        stuck = still_zero(t, held, ctx["contact"]) if it % HOLD_STEPS else held[:0]
-        proj = pressure_projection(frame, t, stuck, ctx["contact"]) if stuck.size else None
+            H0 = RingPreconditioner(frame, points, maps, faces, rings, t, volumes, state)
+        stuck = still_zero(t, held, state.contact) if it % HOLD_STEPS else held[:0]
+        proj = pressure_projection(frame, t, stuck, state.contact) if stuck.size else None
         gamma = preconditioner_scale(S, Y, H0)
         while True:  # the pressures at zero that the step would lower are held (projected out), until none is left
             q = lbfgs_direction(gy, S, Y, H0, proj, gamma)
             dt = frame.apply(q)
-            more = zero_pressures(t, dt, ctx["contact"], stuck)
+            more = zero_pressures(t, dt, state.contact, stuck)
             if more.shape[0] == 0:
                 break
             stuck = np.concatenate([stuck, more])
-            proj = pressure_projection(frame, t, stuck, ctx["contact"])
+            proj = pressure_projection(frame, t, stuck, state.contact)
         held = stuck
         slope = float(gy @ q)
         if -slope <= DESCENT_RTOL * abs(J):  # the step's predicted decrease (about -slope / 2) is negligible
@@ -315,9 +311,9 @@ def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray,
                 break
             S, Y = [], []
             continue
-        alpha = pressure_cap(t, dt, ctx["contact"], stuck)
+        alpha = pressure_cap(t, dt, state.contact, stuck)
         while alpha > 1e-12:
-            Jn, gn = field_energy(maps, faces, t + alpha * dt, volumes, ctx)
+            Jn, gn = field_energy(maps, faces, t + alpha * dt, volumes, state)
             if Jn <= J + ARMIJO * alpha * slope:
                 break
             # the minimiser of the quadratic through J, the slope and Jn, kept within [0.1, 0.5] alpha
@@ -334,11 +330,11 @@ def frame_descent(points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray,
             S, Y = S[-MEMORY:], Y[-MEMORY:]
         new = t + alpha * dt
         if stuck.size:  # a held pressure keeps its value exactly (>= 0); its round-off imbalance goes to the repair
-            at = (np.flatnonzero(ctx["contact"])[stuck[:, 0]], stuck[:, 1], t.shape[2] - 1)
+            at = (np.flatnonzero(state.contact)[stuck[:, 0]], stuck[:, 1], t.shape[2] - 1)
             new[at] = t[at]
         t = new
         # the pressures this step brought to zero (the cap) are held from the next step on, like those held in it
-        held = np.concatenate([stuck, zero_pressures(t, dt, ctx["contact"], stuck)])
+        held = np.concatenate([stuck, zero_pressures(t, dt, state.contact, stuck)])
         J, g, gy = Jn, gn, gyn
         taken += 1
         history.append(J)

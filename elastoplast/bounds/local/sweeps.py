@@ -1,7 +1,7 @@
 """Ring sweeps of the local lower bound: complementary-energy minimisation on edge patches
 (3D) and vertex stars (2D) that keeps the field exactly admissible (docs/bounds.md).
 
-On a ring (:mod:`elastoplast.bounds.rings`) the self-equilibrated corrections are
+On a ring (:mod:`elastoplast.bounds.local.rings`) the self-equilibrated corrections are
 ``tau_f = K_f alpha_f + W_f q`` in closed form. Each ring solves
 
     minimise  J_ring(t + B y)   over y = (alpha, q)
@@ -16,7 +16,7 @@ share no element and are solved as one batch; after the first sweep only the rin
 to a ring that moved are visited (:data:`ACTIVE_SHARE`). Nothing per element is stored
 between batches: an element's Hessian in the tractions of its two faces through the
 entity is assembled on the fly from fixed reference matrices (the composite element's
-lift in reference tractions, :func:`reference_operators`) combined with the element's
+lift in reference tractions, :func:`~elastoplast.bounds.local.state.reference_operators`) combined with the element's
 ``(T P)^T A (T P)`` (P the double Piola map of the lift), one matrix product per
 local-entity class."""
 
@@ -29,12 +29,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from elastoplast.bounds.equilibrate import Faces, element_tractions
-from elastoplast.bounds.lift import MANDEL_PAIRS, ElementMaps, mandel_to_tensor, reference_lift, tensor_to_mandel
-from elastoplast.bounds.rings import RingBatch, face_bases, local_entities
-from elastoplast.bounds.static import mass_matrix
-from elastoplast.bounds.sweeps import element_energy, stress_map
-from elastoplast.fem.material import Material, deviator_matrix, von_mises
+from elastoplast.bounds.local.equilibrate import Faces, element_tractions
+from elastoplast.bounds.local.lift import MANDEL_PAIRS, ElementMaps, reference_lift
+from elastoplast.bounds.local.rings import RingBatch, face_bases
+from elastoplast.bounds.local.state import SweepState, reference_operators
+from elastoplast.fem.material import von_mises
 from elastoplast.limits import blocks
 
 #: step lengths tried per ring (the first that lowers J_ring is kept)
@@ -60,46 +59,11 @@ RING_SLICES_PER_THREAD = 4
 KERNEL_THREADS = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
-@lru_cache(maxsize=None)
-def reference_operators(d: int):
-    """``(Lfull (S, nte), sel (n_le, nsel), Lsel (n_le, S, nsel), HQ (n_le, m m, nsel nsel), HD, AV)``:
-    the reference lift (S = (d+1)^2 m sub-vertex Mandel values from the nte reference
-    vertex tractions), the element traction dofs of the two facets through each local
-    entity (facet, vertex ascending, component), their lift columns and
-    ``HQ[pq] = sum_s sum_bc M_bc L[s,b,p,:]^T L[s,c,q,:]`` and, per sub-vertex,
-    ``HD[sb, pq] = L[s,b,p,:]^T L[s,b,q,:]`` (the curvature of the plastic part)."""
-    d1 = d + 1
-    ref = reference_lift(d)
-    m = len(MANDEL_PAIRS[d])
-    Lfull = ref.matrix.reshape(d1 * d1 * m, d1 * d1 * d)
-    _, LF = local_entities(d)
-    AV = np.array([[a for a in range(d1) if a != f] for f in range(d1)])
-    sel = np.array([[(f * d1 + a) * d + i for f in LF[le] for a in AV[f] for i in range(d)] for le in range(LF.shape[0])])
-    Lsel = Lfull[:, sel].transpose(1, 0, 2)  # (n_le, S, nsel)
-    M = mass_matrix(d)
-    L4 = Lsel.reshape(-1, d1, d1, m, sel.shape[1])
-    HQ = np.einsum("bc,lsbpx,lscqy->lpqxy", M, L4, L4).reshape(LF.shape[0], m * m, -1)
-    L3 = Lsel.reshape(LF.shape[0], d1 * d1, m, -1)
-    HD = np.einsum("lspx,lsqy->lspqxy", L3, L3).reshape(LF.shape[0], d1 * d1 * m * m, -1)
-    return Lfull, sel, Lsel, HQ, HD, AV
-
-
-def piola(maps: ElementMaps, E: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """``TP (N, k, m)``: full Mandel stress from the in-plane reference Mandel values (double Piola map)."""
-    d = maps.J.shape[1]
-    m = len(MANDEL_PAIRS[d])
-    J, det = maps.J[E], maps.det[E]
-    Eb = mandel_to_tensor(np.eye(m), d)
-    JE = np.matmul(J[:, None], Eb[None])  # (N, q, d, d)
-    P = tensor_to_mandel(np.matmul(JE, np.swapaxes(J, 1, 2)[:, None]), d) / det[:, None, None]  # (N, q, p)
-    return np.einsum("kp,nqp->nkq", T, P)
-
-
 def ring_sweep(points, cells, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes: np.ndarray,
-               ctx: dict, batches: list[RingBatch], n_sweeps: int, progress=None) -> np.ndarray:
+               state: SweepState, batches: list[RingBatch], n_sweeps: int, progress=None) -> np.ndarray:
     """At most ``n_sweeps`` sweeps over the ring ``batches`` (after the first, only the rings
     next to a ring that moved, :data:`ACTIVE_SHARE`); returns the new facet tractions ``(F, d, d)``.
-    ``ctx`` is :func:`sweep_context`'s: its ``contact (F,)`` marks the Γ0 facets, whose pressure
+    ``state`` is :func:`~elastoplast.bounds.local.state.sweep_state`'s: its ``contact (F,)`` marks the Γ0 facets, whose pressure
     ``t[f, :, d-1] >= 0`` the rings may move when it is among the free components of the
     batches, and its ``psi (F, d)`` their obstacle weights ``q`` at the vertices (J gains
     ``sum q lam``); ``progress(i)`` is called after sweep i."""
@@ -110,10 +74,10 @@ def ring_sweep(points, cells, maps: ElementMaps, faces: Faces, rings, t: np.ndar
         for b in batches:
             keep = active[b.ent]
             if keep.all():
-                gain[b.ent] = compiled_ring_step(b, points, maps, faces, rings, t, volumes, ctx)
+                gain[b.ent] = compiled_ring_step(b, points, maps, faces, rings, t, volumes, state)
             elif keep.any():
                 sub = subset(b, keep)
-                gain[sub.ent] = compiled_ring_step(sub, points, maps, faces, rings, t, volumes, ctx)
+                gain[sub.ent] = compiled_ring_step(sub, points, maps, faces, rings, t, volumes, state)
         if progress is not None:
             progress(i + 1)
         # next sweep: the rings that share an element with a ring whose gain was not negligible
@@ -124,23 +88,6 @@ def ring_sweep(points, cells, maps: ElementMaps, faces: Faces, rings, t: np.ndar
         active = np.zeros(rings.n_ent, dtype=bool)
         active[rings.elem_ent[moved[rings.elem_ent].any(axis=1)].ravel()] = True
     return t
-
-
-def sweep_context(material: Material, faces: Faces, n: int, d: int, offset=None, psi=None, contact=None) -> dict:
-    """What J's evaluation on ``n`` elements needs besides the tractions: the stress map,
-    compliance, mass matrices, yield stress, hardening, deviator, the plane-strain
-    ``tau33`` offset (``base``), the reference operators, the obstacle weights ``psi``
-    and the Γ0 facets ``contact (F,)`` (default: no Γ0 facet, no obstacle weight)."""
-    T = stress_map(d, material)
-    A = material.compliance(d)
-    M = mass_matrix(d)
-    ctx = dict(T=T, A=A, M=M, MA=np.kron(M, A), sy=material.yield_stress, H=material.hardening,
-               Dv=deviator_matrix(d), base=np.zeros((n, T.shape[0])), ops=reference_operators(d),
-               psi=np.zeros((faces.nodes.shape[0], d)) if psi is None else psi,
-               contact=np.zeros(faces.nodes.shape[0], dtype=bool) if contact is None else contact)
-    if offset is not None and d == 2:
-        ctx["base"][:, 2] = offset
-    return ctx
 
 
 def subset(b: RingBatch, keep) -> RingBatch:
@@ -172,13 +119,14 @@ def ring_face_bases(b: RingBatch, points, faces: Faces, rings, d: int) -> np.nda
     return B
 
 
-def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes, ctx: dict,
-              system_only: bool = False):
-    """One Newton step of J on each ring of the batch (module docstring), written into ``t``;
-    returns each ring's gain. ``system_only``: return the rings' gradient and Hessian in
-    their unknowns ``(gr (m, r), Hr (m, r, r))`` instead, ``t`` untouched."""
-    T, M, MA, sy, H, A = ctx["T"], ctx["M"], ctx["MA"], ctx["sy"], ctx["H"], ctx["A"]
-    Lfull, sel, Lsel, HQ, HD, AV = ctx["ops"]
+def ring_hessians(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes,
+                  state: SweepState) -> np.ndarray:
+    """``Hr (m, r, r)``: the Hessian of J on each ring of the batch in its unknowns (its faces'
+    ``alpha``, then its ``q``) at the tractions ``t`` (what :class:`~elastoplast.bounds.local.descent.RingPreconditioner`
+    inverts). The compiled step (:func:`compiled_ring_step`) assembles the same matrix ring by
+    ring and takes the Newton step with it; ``tests/test_local_edges.py`` checks that they agree."""
+    T, M, H = state.T, state.M, state.H
+    _, sel, Lsel, HQ, HD, AV = state.ops
     m_r, ke = b.E.shape
     kf = b.F.shape[1]
     d = maps.J.shape[1]
@@ -217,29 +165,21 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
     Gh = Gh.reshape(N, nsel, re)
     cidx = np.concatenate([jpos[:, :1] * na + np.arange(na), jpos[:, 1:] * na + np.arange(na),
                            np.broadcast_to(kf * na + np.arange(nq), (N, nq))], axis=1)  # (N, re)
-    # current stresses
-    TP = piola(maps, flat, T)
-    sig = lifted_stresses(maps, faces, t, flat, TP, maps.facet_areas[flat] / ref.areas, ctx)  # (N, s b, k)
-    sig4 = sig.reshape(N, d1, d1, k)
-    J0 = element_energy(sig4, w, MA, M, sy, H).reshape(m_r, ke).sum(axis=1)
-    gs = (sig.reshape(N, d1, d1 * k) @ MA.T).reshape(N, d1 * d1, k) * w[:, None, None]
-    Q = np.matmul(np.swapaxes(TP, 1, 2), A @ TP) * w[:, None, None]
+    TP = state.TP[flat]
+    Q = np.matmul(np.swapaxes(TP, 1, 2), state.A @ TP) * w[:, None, None]
     plastic = np.zeros(N, dtype=bool)
-    if H > 0:
+    if H > 0:  # the plastic part's Gauss-Newton term and curvature at the current stresses
+        sig4 = lifted_stresses(maps, faces, t, flat, TP, state.scale[flat], state).reshape(N, d1, d1, k)
         vm = von_mises(sig4)
-        eta = np.maximum(vm - sy, 0.0)
-        nrm = 1.5 * (sig4 @ ctx["Dv"].T) / np.maximum(vm, 1e-300)[..., None]
+        eta = np.maximum(vm - state.sy, 0.0)
+        nrm = 1.5 * (sig4 @ state.Dv.T) / np.maximum(vm, 1e-300)[..., None]
         nrm = np.where((eta > 0)[..., None], nrm, 0.0)
-        gs = gs + ((eta @ M)[..., None] * nrm * (w / H)[:, None, None, None]).reshape(N, d1 * d1, k)
         plastic = (eta > 0).any(axis=(1, 2)) & valid
-    z = np.matmul(gs, TP).reshape(N, -1)  # (N, S): TP^T gs per sub-vertex
-    gsel = np.empty((N, nsel))
     Hh = np.empty((N, nsel, nsel))
     for v in range(Lsel.shape[0]):
         idx = np.flatnonzero(le == v)
         if idx.size == 0:
             continue
-        gsel[idx] = z[idx] @ Lsel[v]
         Hh[idx] = (Q[idx].reshape(idx.size, -1) @ HQ[v]).reshape(idx.size, nsel, nsel)
         pi = idx[plastic[idx]]
         if pi.size:
@@ -252,85 +192,38 @@ def ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: n
             # Newton's curvature term: sum_sb (M eta)_sb / vm_sb (1.5 Dv - n n^T) in the lifted dofs
             c = np.where(eta[pi] > 0, (eta[pi] @ M) / np.maximum(vm[pi], 1e-300), 0.0).reshape(pi.size, -1)
             c = c * (w[pi] / H)[:, None]
-            Dq = np.matmul(np.swapaxes(TP[pi], 1, 2), 1.5 * ctx["Dv"] @ TP[pi])  # (P, m, m)
+            Dq = np.matmul(np.swapaxes(TP[pi], 1, 2), 1.5 * state.Dv @ TP[pi])  # (P, m, m)
             Hh[pi] += ((c[:, :, None, None] * Dq[:, None]).reshape(pi.size, -1) @ HD[v]).reshape(pi.size, nsel, nsel)
             Hh[pi] -= np.matmul(np.swapaxes(Ln * c[:, :, None], 1, 2), Ln)
-    ge = np.matmul(gsel[:, None, :], Gh)[:, 0]
     He = np.matmul(np.swapaxes(Gh, 1, 2), np.matmul(Hh, Gh))  # (N, re, re)
-    gr = np.bincount((ring[:, None] * r + cidx).ravel(), ge.ravel(), minlength=m_r * r).reshape(m_r, r)
-    Fs = np.where(b.F >= 0, b.F, 0)
-    onc = ctx["contact"][Fs] & (b.F >= 0)  # Γ0 faces of the rings: lam = t[:, d-1] = s tau[:, d-1]
-    has_c = onc.any()
-    if has_c:
-        Bl = B.reshape(m_r, kf, d, d, -1)[:, :, :, d - 1, :] * (b.s * onc)[:, :, None, None]  # (m, kf, slot, cols)
-        gpsi = np.einsum("mfa,mfac->mfc", ctx["psi"][Fs], Bl)
-        gp = np.concatenate([gpsi[..., :na].reshape(m_r, kf * na), gpsi[..., na:].sum(axis=1)], axis=1)
-        gr += gp
     hidx = (ring[:, None, None] * r + cidx[:, :, None]) * r + cidx[:, None, :]
-    Hr = np.bincount(hidx.ravel(), He.ravel(), minlength=m_r * r * r).reshape(m_r, r, r)
-    if system_only:
-        return gr, Hr
-    ds, Hs, dead = scaled_system(Hr)
-    y = -ds * np.linalg.solve(Hs, (gr * ds)[..., None])[..., 0]
-    y[dead] = 0.0
-    ye = y[ring[:, None], cidx]  # (N, re)
-    dth = np.matmul(Gh, ye[..., None])[..., 0]
-    dSig = np.empty((N, d1 * d1 * mm))
-    for v in range(Lsel.shape[0]):
-        idx = np.flatnonzero(le == v)
-        if idx.size:
-            dSig[idx] = dth[idx] @ Lsel[v].T
-    dsig = np.matmul(dSig.reshape(N, d1 * d1, mm), np.swapaxes(TP, 1, 2))
-    dtau = ring_corrections(B, y, nq)  # (m, kf, dd): the change of each ring face per unit step
-    cap = np.ones(m_r)
-    lin = np.zeros(m_r)
-    if has_c:  # the pressure stays >= 0 at the vertices of the Γ0 faces: the step is capped
-        # the pressure change is read from the very numbers that will be added (dtau), so the cap is exact
-        dlam = (b.s[..., None] * dtau.reshape(m_r, kf, d, d)[..., d - 1]) * onc[..., None]
-        lam0 = t[Fs, :, d - 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lim = np.where(onc[..., None] & (dlam < 0), np.maximum(lam0, 0.0) / -dlam, np.inf)
-        cap = np.minimum(1.0, (1.0 - LAM_MARGIN) * lim.min(axis=(1, 2)))  # lam0 + cap dlam >= LAM_MARGIN lam0 > 0
-        lin = np.einsum("mr,mr->m", gp, y)
-    best = np.zeros(m_r)
-    gain = np.zeros(m_r)
-    todo = np.flatnonzero(cap > 0)
-    for a in STEPS:  # the first step length that lowers J_ring, evaluated on the undecided rings only
-        if todo.size == 0:  # (every ring's step capped to nothing by a pressure at zero)
-            break
-        el = (todo[:, None] * ke + np.arange(ke)).ravel()
-        at = a * cap[todo]
-        Ja = element_energy((sig[el] + np.repeat(at, ke)[:, None, None] * dsig[el]).reshape(-1, d1, d1, k), w[el],
-                            MA, M, sy, H)
-        Jr = Ja.reshape(-1, ke).sum(axis=1) + at * lin[todo]
-        better = Jr < J0[todo]
-        best[todo[better]] = at[better]
-        gain[todo[better]] = J0[todo[better]] - Jr[better]
-        todo = todo[~better]
-    dtau *= best[:, None, None]
-    ok = b.F >= 0
-    t.reshape(t.shape[0], -1)[b.F[ok]] += (b.s[..., None] * dtau)[ok]
-    return gain
+    return np.bincount(hidx.ravel(), He.ravel(), minlength=m_r * r * r).reshape(m_r, r, r)
 
 
 def compiled_ring_step(b: RingBatch, points, maps: ElementMaps, faces: Faces, rings, t: np.ndarray, volumes,
-                       ctx: dict) -> np.ndarray:
-    """:func:`ring_step` in compiled loops, ring by ring (:func:`~elastoplast.bounds.ring_kernel.ring_newton`):
-    the same step written into ``t``; returns each ring's gain."""
-    from elastoplast.bounds.ring_kernel import ring_newton
+                       state: SweepState) -> np.ndarray:
+    """One Newton step of J on each ring of the batch (module docstring), in compiled loops ring by ring
+    (:func:`~elastoplast.bounds.local.kernel.ring_newton`), written into ``t``; returns each ring's gain."""
+    from elastoplast.bounds.local.kernel import ring_newton
 
     d = maps.J.shape[1]
-    element_context(maps, faces, ctx)
-    Lfull, _, _, _, _, AV = ctx["ops"]
+    Lfull, AV = state.ops.Lfull, state.ops.AV
     pairs, tri, HQp, Lsel, LselT = packed_hessian_operator(d)
     gain = np.zeros(b.E.shape[0])
-    args = [b.E, b.valid, b.le, b.lf, b.j, b.o.astype(float), b.F, b.s, b.end, b.Nb, d if d == 3 else 1, points,
-            faces.nodes, rings.point, rings.ell, b.ent, t, faces.face, faces.slot, ctx["sign"],
-            maps.Jinv, ctx["scale"], ctx["TP"], ctx["base"], volumes, ctx["A"], ctx["M"], float(ctx["sy"]),
-            float(ctx["H"]), ctx["Dv"], Lfull, Lsel, LselT, HQp, pairs, tri, AV, ctx["contact"], ctx["psi"],
-            np.array(STEPS), RIDGE, LAM_MARGIN, gain]
-    # one compiled signature: every array C-contiguous and writable (a read-only view is copied; t is written in place)
-    args = [np.require(a, requirements=("C", "W")) if isinstance(a, np.ndarray) and a is not t else a for a in args]
+
+    def ready(*arrays):  # one compiled signature: every array C-contiguous and writable (a read-only view
+        # is copied; t, written in place, is C-contiguous and writable already)
+        return tuple(np.require(a, requirements=("C", "W")) if isinstance(a, np.ndarray) and a is not t else a
+                     for a in arrays)
+
+    batch = ready(b.E, b.valid, b.le, b.lf, b.j, b.o.astype(float), b.F, b.s, b.end, b.Nb, d if d == 3 else 1)
+    geometry = ready(points, faces.nodes, rings.point, rings.ell, b.ent)
+    field = ready(t, faces.face, faces.slot, state.sign, maps.Jinv, state.scale, state.TP, state.base, volumes)
+    material = ready(state.A, state.M, state.sy, state.H, state.Dv)
+    operators = ready(Lfull, Lsel, LselT, HQp, pairs, tri, AV)
+    obstacle = ready(state.contact, state.psi)
+    control = (np.array(STEPS), RIDGE, LAM_MARGIN)
+    args = [batch, geometry, field, material, operators, obstacle, control, gain]
     in_slices(ring_newton, b.E.shape[0], args, least=RING_SLICE, per_thread=RING_SLICES_PER_THREAD)
     return gain
 
@@ -379,24 +272,6 @@ def packed_hessian_operator(d: int):
             np.ascontiguousarray(np.swapaxes(Lsel, 1, 2)))
 
 
-#: elements per block of the Piola maps of :func:`element_context`
-PIOLA_BLOCK = 1 << 14
-
-
-def element_context(maps: ElementMaps, faces: Faces, ctx: dict) -> None:
-    """Keep in ``ctx`` what J's evaluation needs per element of the mesh: ``TP`` the double Piola
-    maps (:func:`piola`), ``scale`` the physical over reference facet measures, ``sign`` the
-    facets' orientations as floats (what the compiled loops read)."""
-    if "TP" not in ctx:
-        d, n = maps.J.shape[1], maps.J.shape[0]
-        TP = np.empty((n, ctx["T"].shape[0], len(MANDEL_PAIRS[d])))
-        for sl in blocks(n, PIOLA_BLOCK):  # piola's products for the whole mesh are 3 times TP
-            TP[sl] = piola(maps, np.arange(sl.start, sl.stop), ctx["T"])
-        ctx["TP"] = TP
-        ctx["scale"] = maps.facet_areas / reference_lift(d).areas
-        ctx["sign"] = faces.sign.astype(float)
-
-
 def ring_corrections(B: np.ndarray, y: np.ndarray, nq: int) -> np.ndarray:
     """``(m, kf, d d)``: each ring face's traction change ``B (alpha_f, q)`` for the rings'
     unknowns ``y (m, kf na + nq)`` (its faces' ``alpha``, then the ring's ``q``; ``B`` from
@@ -421,17 +296,24 @@ def scaled_system(Hr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def lifted_stresses(maps: ElementMaps, faces: Faces, t: np.ndarray, E: np.ndarray, TP: np.ndarray,
-                    scale: np.ndarray, ctx: dict) -> np.ndarray:
+                    scale: np.ndarray, state: SweepState) -> np.ndarray:
     """``(N, (d+1)^2, k)``: the sub-vertex stresses of the elements ``E`` lifted from the facet
-    tractions ``t`` (their double Piola maps ``TP`` (:func:`piola`), facet scales ``scale
-    (N, d+1)``: physical over reference facet measures; plus ``ctx["base"]``)."""
+    tractions ``t`` (their double Piola maps ``TP``, facet scales ``scale (N, d+1)``: physical
+    over reference facet measures; plus ``state.base``)."""
     N, d1 = E.size, maps.J.shape[1] + 1
     that = np.matmul(element_tractions(faces, t, E), np.swapaxes(maps.Jinv[E], 1, 2)[:, None]) \
         * scale[:, :, None, None]
-    Sig = (that.reshape(N, -1) @ ctx["ops"][0].T).reshape(N, d1 * d1, -1)
-    return np.matmul(Sig, np.swapaxes(TP, 1, 2)) + ctx["base"][E][:, None, :]
+    Sig = (that.reshape(N, -1) @ state.ops.Lfull.T).reshape(N, d1 * d1, -1)
+    return np.matmul(Sig, np.swapaxes(TP, 1, 2)) + state.base[E][:, None, :]
 
 
+#: passes of the round-off repair at most (each visits every colour)
+REPAIR_PASSES = 4
+#: the element imbalance (relative to ``|C_e| max|t|``) below which the repair stops: round-off
+#: (the lift leaves an element's imbalance on its facets in the physical metric,
+#: :func:`~elastoplast.bounds.local.lift.lift`; before its refinement it amplified it up to 1e4
+#: times on elements of condition number 100-150)
+REPAIR_TOL = 2e-15
 #: the round-off repair stops once a pass leaves the largest imbalance above this share of the
 #: last (at the round-off of the rings' own solves: on the default 3D problem at 98,304
 #: tetrahedra, from a P1 solution to 1e-13, 1.8e-14 went to 2.72e-15 after 4 passes, 2.73e-15
@@ -451,11 +333,11 @@ def ring_repair(points, cells, maps: ElementMaps, faces: Faces, t: np.ndarray, b
     balance rows of its elements (rows normalised; ``(C C^T + eps I)`` solved and refined
     once, so a ring's own net imbalance, which it cannot change, is left for the next
     colour). Passes over the colours until the largest relative imbalance
-    (:func:`~elastoplast.bounds.sweeps.element_imbalance`) is at most ``tol``, or until a pass
+    (:func:`~elastoplast.bounds.local.energy.element_imbalance`) is at most ``tol``, or until a pass
     lowers it by less than :data:`STALL`; a pass visits only the rings with an element above
     ``VISIT * tol`` (a ring's correction changes the balance of its own elements only).
     Returns ``(t, before, after)``."""
-    from elastoplast.bounds.sweeps import element_imbalance
+    from elastoplast.bounds.local.energy import element_imbalance
 
     t = t.copy()
     imbalance = element_imbalance(points, cells, maps, faces, t)
@@ -497,7 +379,7 @@ def repair_rings(b: RingBatch, points, cells, maps: ElementMaps, faces: Faces, t
                  sel: np.ndarray, AV: np.ndarray) -> None:
     """One step of :func:`ring_repair` on the rings of ``b`` (of one colour): the least-norm
     correction of their faces' free components that zeroes their elements' balance rows, added into ``t``."""
-    from elastoplast.bounds.sweeps import balance_matrices
+    from elastoplast.bounds.local.energy import balance_matrices
 
     d = cells.shape[1] - 1
     dd = d * d

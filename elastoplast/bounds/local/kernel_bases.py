@@ -1,6 +1,6 @@
-"""The geometric pieces of the compiled ring step (:mod:`elastoplast.bounds.ring_kernel`): each
-ring face's closed-form bases (:func:`~elastoplast.bounds.rings.face_bases`, and
-:func:`~elastoplast.bounds.edges.ring_face_bases` of one ring) and the small dense solve of a
+"""The geometric pieces of the compiled ring step (:mod:`elastoplast.bounds.local.kernel`): each
+ring face's closed-form bases (:func:`~elastoplast.bounds.local.rings.face_bases`, and
+:func:`~elastoplast.bounds.local.sweeps.ring_face_bases` of one ring) and the small dense solve of a
 ring's Newton system, as compiled loops."""
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def _cross(a, b, out):
 
 @njit(cache=True, fastmath=FAST)
 def _face_basis(X, p, ell, K, G):
-    """:func:`~elastoplast.bounds.rings.face_bases` of one face ``X (d, d)`` about ``p``: ``K (d d, na)``,
+    """:func:`~elastoplast.bounds.local.rings.face_bases` of one face ``X (d, d)`` about ``p``: ``K (d d, na)``,
     ``G (d d, nr)``."""
     d = X.shape[0]
     g = np.zeros(d)
@@ -165,7 +165,7 @@ def _face_basis(X, p, ell, K, G):
 
 @njit(cache=True, fastmath=FAST)
 def ring_bases(ir, F, end, Nb, points, nodes, point, ell, ent, B):
-    """:func:`~elastoplast.bounds.edges.ring_face_bases` of ring ``ir`` into ``B (kf, d d, na + nq)``."""
+    """:func:`~elastoplast.bounds.local.sweeps.ring_face_bases` of ring ``ir`` into ``B (kf, d d, na + nq)``."""
     kf = F.shape[1]
     d = points.shape[1]
     dd = d * d

@@ -1,33 +1,28 @@
-"""Shared pieces of the local lower bound's sweeps and repair (docs/bounds.md, "a local field").
+"""The element complementary energy of the local field and what the sweeps, the descent and
+the repair share with it (docs/bounds.md, "a local field").
 
-The sweeps themselves are ring sweeps (:mod:`elastoplast.bounds.rings`,
-:mod:`elastoplast.bounds.edges`); this module holds what they share with the rest: the
-element energy of sub-vertex stresses, the plane-strain stress map, the elements' force
-and moment rows of their vertex tractions, the relative element imbalance and the
-tolerances of the round-off repair. (The vertex-star sweeps with an SVD basis per star,
-and the whole-mesh balance projection they needed as a fallback, were replaced by the
-ring sweeps and the ring repair: in 3D a star has about 300 traction unknowns, a ring 54.)"""
+:func:`element_energy` is J_e of sub-vertex stresses, ``w/2 sum_s sig_s (M x A) sig_s +
+w/(2H) sum_s eta_s M eta_s`` with ``eta = max(0, vm - sigma_y)``: the one numpy copy (the
+sweeps' and the descent's compiled loops keep a twin, ``kernel._energy``, held to this one
+by ``tests/test_local_frame.py``). Beside it: the plane-strain stress map, the elements'
+force and moment rows of their vertex tractions and the relative element imbalance that
+the round-off repair drives to zero. (The vertex-star sweeps with an SVD basis per star
+were replaced by the ring sweeps and the ring repair: in 3D a star has about 300 traction
+unknowns, a ring 54.)"""
 
 from __future__ import annotations
 
 import numpy as np
 
-from elastoplast.bounds.equilibrate import Faces, element_tractions
-from elastoplast.bounds.lift import ElementMaps
-from elastoplast.bounds.lift import balance_matrices as vertex_balance_matrices
+from elastoplast.bounds.local.equilibrate import Faces, element_tractions
+from elastoplast.bounds.local.lift import ElementMaps
+from elastoplast.bounds.local.lift import balance_matrices as vertex_balance_matrices
 from elastoplast.fem.material import Material, von_mises
 from elastoplast.limits import blocks
 
 #: elements per block of :func:`element_imbalance` (a block's balance rows and their squares:
 #: some 10 kB per element; 4k elements keep them near 40 MB)
 IMBALANCE_BLOCK = 1 << 12
-#: passes of the round-off repair at most (each visits every colour)
-REPAIR_PASSES = 4
-#: the element imbalance (relative to ``|C_e| max|t|``) below which the repair stops: round-off
-#: (the lift leaves an element's imbalance on its facets in the physical metric,
-#: :func:`~elastoplast.bounds.lift.lift`; before its refinement it amplified it up to 1e4
-#: times on elements of condition number 100-150)
-REPAIR_TOL = 2e-15
 
 
 def stress_map(dim: int, material: Material) -> np.ndarray:
@@ -43,7 +38,7 @@ def stress_map(dim: int, material: Material) -> np.ndarray:
 
 def balance_matrices(points: np.ndarray, cells: np.ndarray, areas: np.ndarray) -> np.ndarray:
     """``(n, nb, (d+1)(d+1)d)``: force and moment (about the centroid) of an element's outward
-    vertex tractions ``t[i, a, j]`` (zero weight where a == i; :func:`~elastoplast.bounds.lift.balance_matrices`)."""
+    vertex tractions ``t[i, a, j]`` (zero weight where a == i; :func:`~elastoplast.bounds.local.lift.balance_matrices`)."""
     return vertex_balance_matrices(points[cells], areas)
 
 

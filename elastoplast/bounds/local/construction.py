@@ -5,14 +5,14 @@ its hardening stress is large enough (``eta = max(0, vm(tau) - sigma_y)``). The 
 built here is exactly admissible and costs a few batched passes over the mesh:
 
 1. the discrete stress, corrected near Γ0 so that its nodal balance holds with a
-   non-negative linear contact pressure (:mod:`elastoplast.bounds.contact_layer`);
-2. equilibrated facet tractions, vertex star by vertex star (:mod:`elastoplast.bounds.equilibrate`);
-3. their exact lift into each element on its barycentric split (:mod:`elastoplast.bounds.lift`);
+   non-negative linear contact pressure (:mod:`elastoplast.bounds.local.contact`);
+2. equilibrated facet tractions, vertex star by vertex star (:mod:`elastoplast.bounds.local.equilibrate`);
+3. their exact lift into each element on its barycentric split (:mod:`elastoplast.bounds.local.lift`);
 4. optionally, sweeps of ring-local complementary-energy minimisation (edge patches in
-   3D, vertex stars in 2D: :mod:`elastoplast.bounds.rings`, :mod:`elastoplast.bounds.edges`),
+   3D, vertex stars in 2D: :mod:`elastoplast.bounds.local.rings`, :mod:`elastoplast.bounds.local.sweeps`),
    each keeping the field admissible and moving the contact pressure too (``lam >= 0``
    and ``int lam = F`` kept), then the round-off repair of the elements' balance, ring by
-   ring (:func:`~elastoplast.bounds.edges.ring_repair`; nothing global is factored);
+   ring (:func:`~elastoplast.bounds.local.sweeps.ring_repair`; nothing global is factored);
 5. in plane strain ``tau33 = nu (tau11 + tau22) + offset`` (:func:`out_of_plane_offset`),
    then moved towards each sub-element's minimiser of J (:func:`optimal_tau33`; no
    equilibrium row involves it), ``eta`` at every sub-element vertex as above; the field lives on the split mesh,
@@ -31,9 +31,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from elastoplast.bounds.equilibrate import (average_moments, element_nodal_forces, element_tractions,
+from elastoplast.bounds.local.equilibrate import (average_moments, element_nodal_forces, element_tractions,
                                             facet_tractions, mesh_faces, star_moments)
-from elastoplast.bounds.lift import IN_PLANE, element_maps, lift, mandel_to_tensor, split_mesh, tensor_to_mandel
+from elastoplast.bounds.local.lift import IN_PLANE, element_maps, lift, mandel_to_tensor, split_mesh, tensor_to_mandel
 from elastoplast.bounds.static import (CERTIFY_TOL, LocalTerms, StaticField, certify_static,
                                        local_terms, mass_matrix, psi_weights)
 from elastoplast.errors import InputError, expect
@@ -45,7 +45,7 @@ from elastoplast.mesh.topology import locate_rows
 
 @dataclass(frozen=True)
 class SplitDiscretization:
-    """The discretisation of the barycentric split (:func:`~elastoplast.bounds.lift.split_mesh`)
+    """The discretisation of the barycentric split (:func:`~elastoplast.bounds.local.lift.split_mesh`)
     that the local field lives on: ``disc`` (only its mesh, facet groups, material and
     force are used: what :func:`certify_static` and :func:`local_terms` read) and
     ``parent (n (d+1),)`` the element of the original mesh of each sub-element."""
@@ -72,7 +72,7 @@ class LocalField:
     """The local field (module docstring) and how it was obtained: ``split``, ``field``
     (a :class:`StaticField` of ``split.disc``), ``star_residual`` the largest relative row
     residual of the star systems, ``imbalance`` the largest element imbalance of the
-    tractions before and after the round-off repair (relative, :func:`~elastoplast.bounds.sweeps.element_imbalance`;
+    tractions before and after the round-off repair (relative, :func:`~elastoplast.bounds.local.energy.element_imbalance`;
     zeros without sweeps) and False (no whole-mesh projection: kept for the callers), ``timings``."""
 
     split: SplitDiscretization
@@ -101,7 +101,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     """Steps 1-3 and 5 of the module docstring from the discrete stresses ``sigma (n, k)``
     in nodal balance with the contact forces ``contact_force`` (per contact node);
     ``n_sweeps`` ring sweeps, then at most ``descent`` steps over all rings together
-    (step 4; both need ``n_sweeps > 0``; ``upper``: :func:`~elastoplast.bounds.frame.frame_descent`'s)."""
+    (step 4; both need ``n_sweeps > 0``; ``upper``: :func:`~elastoplast.bounds.local.descent.frame_descent`'s)."""
     t0 = time.perf_counter()
     timings = {}
     d, m = disc.dim, disc.material
@@ -114,7 +114,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     normals = -grads / np.linalg.norm(grads, axis=2, keepdims=True)
     n_if = faces.n_interior
     cf = n_if + topo.contact_index  # facet ids of Γ0
-    from elastoplast.bounds.contact_layer import contact_pressure_and_correction
+    from elastoplast.bounds.local.contact import contact_pressure_and_correction
 
     lam, dS = contact_pressure_and_correction(disc, faces, S, contact_force)
     S = S + dS
@@ -134,9 +134,9 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
     report = progress if progress is not None else (lambda fraction, what: None)
     report(0.1, "equilibrated tractions")
     if n_sweeps > 0:
-        from elastoplast.bounds.edges import ring_repair, ring_sweep, sweep_context
-        from elastoplast.bounds.rings import mesh_rings, ring_batches
-        from elastoplast.bounds.sweeps import REPAIR_PASSES, REPAIR_TOL
+        from elastoplast.bounds.local.state import sweep_state
+        from elastoplast.bounds.local.sweeps import REPAIR_PASSES, REPAIR_TOL, ring_repair, ring_sweep
+        from elastoplast.bounds.local.rings import mesh_rings, ring_batches
 
         t1 = time.perf_counter()
         free = faces.unknown.copy()
@@ -147,7 +147,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
         rings = mesh_rings(mesh.points, mesh.cells)
         batches = ring_batches(mesh.points, mesh.cells, grads, faces, rings, free)
         timings["rings"] = time.perf_counter() - t1
-        from elastoplast.bounds.ring_kernel import ring_newton
+        from elastoplast.bounds.local.kernel import ring_newton
 
         # the first use on a machine compiles the sweeps (about half a minute, then cached): say so before the wait
         report(0.15, "patches" if ring_newton.signatures
@@ -163,19 +163,19 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
         on_contact = np.zeros(faces.nodes.shape[0], dtype=bool)
         on_contact[cf] = True
         release_freed_memory()  # the rings' set-up temporaries
-        ctx = sweep_context(m, faces, disc.n_elements, d, offset, psi_face, on_contact)  # the sweeps' and the descent's
-        t = ring_sweep(mesh.points, mesh.cells, maps, faces, rings, t, disc.volumes, ctx, batches, n_sweeps, swept)
+        state = sweep_state(m, maps, faces, offset, psi_face, on_contact)  # the sweeps' and the descent's
+        t = ring_sweep(mesh.points, mesh.cells, maps, faces, rings, t, disc.volumes, state, batches, n_sweeps, swept)
         timings["sweeps"] = time.perf_counter() - t1
         timings["descent_steps"] = 0
         if descent > 0:
-            from elastoplast.bounds.frame import RingFrame, frame_descent
+            from elastoplast.bounds.local.descent import RingFrame, frame_descent
 
             t1 = time.perf_counter()
 
             def stepped(i):
                 report(0.5 + 0.4 * i / descent, f"descent step {i} of at most {descent}")
 
-            t, timings["descent_steps"] = frame_descent(mesh.points, maps, faces, rings, t, disc.volumes, ctx,
+            t, timings["descent_steps"] = frame_descent(mesh.points, maps, faces, rings, t, disc.volumes, state,
                                                         RingFrame(batches, mesh.points, faces, rings, d), descent, stepped,
                                                         upper)
             timings["descent"] = time.perf_counter() - t1
@@ -189,7 +189,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
         lam = t[cf, :, d - 1].copy()
         timings["repair"] = time.perf_counter() - t1
         report(0.9, "repaired")
-        del rings, batches, ctx  # the sweeps' structures: not needed for the lift, and as large as the field
+        del rings, batches, state  # the sweeps' structures: not needed for the lift, and as large as the field
     te = element_tractions(faces, t)
     contact_nodes = faces.nodes[cf]
     del t, faces  # freed before the lift and the split mesh's topology make their own temporaries
@@ -212,7 +212,7 @@ def equilibrated_field(disc: Discretization, sigma: np.ndarray, contact_force: n
 
 def element_energies(disc: Discretization, tau: np.ndarray) -> np.ndarray:
     """``(n,)``: J's element terms of sub-vertex stresses ``tau (n, d+1, d+1, k)``, ``eta`` the vertex max."""
-    from elastoplast.bounds.sweeps import element_energy
+    from elastoplast.bounds.local.energy import element_energy
 
     d, m = disc.dim, disc.material
     M = mass_matrix(d)
@@ -302,7 +302,7 @@ def admissible_field(split_disc: Discretization, tau: np.ndarray, lam: np.ndarra
 
 
 #: sweeps of :func:`local_lower_bound` by default, per dimension (after the first, a sweep
-#: visits only the rings next to a ring that moved: :data:`~elastoplast.bounds.edges.ACTIVE_SHARE`).
+#: visits only the rings next to a ring that moved: :data:`~elastoplast.bounds.local.sweeps.ACTIVE_SHARE`).
 #: Measured (benchmarks/bounds/local.md), gap over the global program's on the same mesh:
 #: 2D cylinder at 25,600 triangles 1.82 after 32 sweeps, 1.29 after 64 (1.02 after 128, a
 #: separate run); 3D default problem at 12,288 tetrahedra 1.48 after 32 sweeps that revisit
@@ -310,8 +310,8 @@ def admissible_field(split_disc: Discretization, tau: np.ndarray, lam: np.ndarra
 #: next to an above-mean gain (34 s: the 3D share of edges.ACTIVE_SHARE)
 LOCAL_SWEEPS = {2: 64, 3: 64}
 #: steps at most of the descent over all rings together after the sweeps
-#: (:mod:`elastoplast.bounds.frame`; it stops earlier once its predicted decrease is below
-#: :data:`~elastoplast.bounds.frame.DESCENT_RTOL` of J, or, given the upper bound, once it
+#: (:mod:`elastoplast.bounds.local.descent`; it stops earlier once its predicted decrease is below
+#: :data:`~elastoplast.bounds.local.descent.DESCENT_RTOL` of J, or, given the upper bound, once it
 #: gains little against the gap: frame.DESCENT_GAP_SHARE). The sweeps alone stall in plastic
 #: zones. Measured with the upper bound given (as `bounds` and `adapt` run it), gap over the
 #: global program's on the same mesh, 100 steps / 300: quarter sphere at 1,080 tetrahedra
@@ -339,7 +339,7 @@ def local_lower_bound(disc: Discretization, solution, n_sweeps: int | None = Non
     ``n_sweeps`` ring sweeps (default :func:`local_sweeps` of the dimension), then at most
     ``descent`` steps over all rings together (default :data:`DESCENT_STEPS`; 0: none; with
     ``upper``, the upper bound's Pi on ``disc``, it stops once it gains little against the
-    gap: :func:`~elastoplast.bounds.frame.frame_descent`). ``progress``, if given, is called as
+    gap: :func:`~elastoplast.bounds.local.descent.frame_descent`). ``progress``, if given, is called as
     ``progress(fraction, what)`` after each phase, sweep and step (fraction in [0, 1])."""
     from elastoplast.bounds.lower import LowerBound
     from elastoplast.certificate.solution import Solution, Status

@@ -35,7 +35,7 @@ import matplotlib.pyplot as plt
 import elastoplast as ep
 from elastoplast.adapt.records import AdaptOptions, elements_at_gap, fitted_rate
 from elastoplast.adapt.loop import adapt, uniform
-from elastoplast.cli.plots import draw_indicator, plot_gap_curves, zoom_window
+from elastoplast.plots.figures import draw_indicator, plot_gap_curves, zoom_window
 from elastoplast.bounds.bracket import element_indicators
 from elastoplast.problem.definition import read_toml
 

@@ -32,9 +32,9 @@ import numpy as np
 from matplotlib.collections import PolyCollection
 
 import elastoplast as ep
-from elastoplast.cli.plots import slice_polygons
+from elastoplast.plots.figures import slice_polygons
 from elastoplast.fem.material import von_mises
-from elastoplast.io.paths import path_summary
+from elastoplast.io.loading_path import path_summary
 
 SMALL = os.environ.get("ELASTOPLAST_NOTEBOOK_SMALL") == "1"
 E, NU, SY, H = 2e5, 0.3, 1200.0, 1e4

@@ -549,7 +549,7 @@ def run_check(problem_path: str | Path, answer_path: str | Path, tol: float | No
     written = ""
     if out is not None:
         from elastoplast.bounds.bracket import gap_fields
-        from elastoplast.cli.results import write_results
+        from elastoplast.studies.results import write_results
 
         vtu = gap_fields(disc, report.bounds) if report is not None else {}
         write_results(out, disc, sol, extra=extra, field="--out", **vtu)

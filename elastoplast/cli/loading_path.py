@@ -20,7 +20,7 @@ from elastoplast.cli.exits import outcome
 from elastoplast.cli.printing import discretize_file, figure, problem_line
 from elastoplast.errors import InputError
 from elastoplast.fem.discretize import Discretization
-from elastoplast.io.paths import path_solution, path_summary, write_path_files
+from elastoplast.io.loading_path import path_solution, path_summary, write_path_files
 from elastoplast.options import SolverOptions
 from elastoplast.solvers.path import PathResult, PathStep, solve_path
 
@@ -135,7 +135,7 @@ def solve_path_command(args: argparse.Namespace, path: Path, data: dict, method:
 
 def path_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
     """A campaign case with a loading path: the path solved by the case's method, its
-    answer as one solution (:func:`~elastoplast.io.paths.path_solution`: the last step,
+    answer as one solution (:func:`~elastoplast.io.loading_path.path_solution`: the last step,
     total displacement, the path's status), ``summary.json`` with the path's summary
     (``"path"``: every step) and the last step's VTU."""
     from elastoplast.fem.discretize import discretize

@@ -1,7 +1,7 @@
 """``elastoplast compare SUITE_DIR --method M1 --method M2 ...``: every method on every
 problem file of a folder (a suite of instances), each answer certified at one
 tolerance, and the methods compared by performance profiles and shifted geometric
-means of their times (:mod:`elastoplast.cli.profiles`).
+means of their times (:mod:`elastoplast.studies.profiles`).
 
 An instance counts as solved by a method only when its answer is ``converged``: the
 certificate's every relative KKT residual at most ``--tol`` (in the user's units as well).
@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK
-from elastoplast.cli.profiles import (
+from elastoplast.studies.profiles import (
     fraction_solved,
     instances_of,
     performance_profile,
@@ -120,7 +120,7 @@ def run_instance(spec: Mapping[str, Any]) -> dict[str, Any]:
 def _run_path(disc, spec: Mapping[str, Any]) -> dict[str, Any]:
     """An instance with a loading path: solved when every step converged; its KKT
     residual is the worst of the steps', its U the last step's."""
-    from elastoplast.io.paths import path_status
+    from elastoplast.io.loading_path import path_status
     from elastoplast.solvers.path import solve_path
 
     result = solve_path(disc, disc.problem.path, spec["method"], **spec["options"])
@@ -221,7 +221,7 @@ def profile_markdown(record: Mapping[str, Any]) -> str:
 def write_profile(record: Mapping[str, Any], out_dir: str | Path, field: str = "out", title: str = "") -> Path:
     """Write ``profile.png``, ``profile.json`` and ``profile.md`` into ``out_dir``
     (staged: the folder is replaced only when all three are written)."""
-    from elastoplast.cli.plots import plot_profile
+    from elastoplast.plots.figures import plot_profile
     from elastoplast.io.output import json_text, staged_output
     from elastoplast.io.store import atomic_write
 
@@ -245,7 +245,7 @@ def run_suite(suite_dir: str | Path, methods: Sequence[str], *, out: str | Path,
     In this process, one run after another (the times undisturbed), unless a Dask
     ``client``, a ``scheduler`` address or ``n_workers`` is given: then on that cluster
     (the machinery of ``elastoplast campaign``; concurrent runs share the machine)."""
-    from elastoplast.cli.campaign import check_cluster, cluster_client, gather_results, warm_up
+    from elastoplast.studies.campaign import check_cluster, cluster_client, gather_results, warm_up
     from elastoplast.io.output import check_output_dir
 
     per_method = suite_options(methods, tol, time_limit, options)

@@ -22,7 +22,7 @@ the axes::
 writes each one as it finishes (:mod:`elastoplast.io.store`); :func:`compare` runs
 another method on every stored reference and reports its errors::
 
-    from elastoplast.cli.campaign import compare, load_campaign, run_campaign
+    from elastoplast.studies.campaign import compare, load_campaign, run_campaign
     from elastoplast.io.store import Store
 
     run_campaign(load_campaign("problems/campaign_2d.toml"), "refs")  # local cluster
@@ -358,8 +358,8 @@ def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[
     that workers need no shared file system), or ``{"error", "traceback",
     "worker"}`` if anything raised.
     """
-    from elastoplast.cli.paths import path_case
-    from elastoplast.cli.results import write_files
+    from elastoplast.cli.loading_path import path_case
+    from elastoplast.studies.results import write_files
     from elastoplast.fem.discretize import discretize
     from elastoplast.solvers.registry import solve
 
@@ -392,7 +392,7 @@ def adaptive_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
     from elastoplast.adapt.records import AdaptOptions
     from elastoplast.bounds.bracket import gap_fields
     from elastoplast.certificate.solution import Status
-    from elastoplast.cli.results import write_files
+    from elastoplast.studies.results import write_files
     from elastoplast.io.output import json_text
     from elastoplast.mesh.base import write_mesh
 

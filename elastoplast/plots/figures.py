@@ -217,7 +217,7 @@ def plot_indicator(path, disc: Discretization, solution: Solution, bounds: Bound
 
 
 def plot_comparison(comparison, path: str | Path) -> None:
-    """Errors (log scale) and time ratios per reference case of a :class:`~elastoplast.cli.compare.Comparison`,
+    """Errors (log scale) and time ratios per reference case of a :class:`~elastoplast.studies.compare.Comparison`,
     written as PNG."""
     import io
 
@@ -286,7 +286,7 @@ def _positive(values: list[Any]) -> np.ndarray:
 
 
 def plot_profile(profile: dict[str, list[float]], path: str | Path, *, taus: list[float], title: str = "") -> None:
-    """Performance profiles (:func:`~elastoplast.cli.profiles.performance_profile`):
+    """Performance profiles (:func:`~elastoplast.studies.profiles.performance_profile`):
     one step curve per method, the fraction of instances solved within a factor τ of
     the best method against log2 τ, written as PNG."""
     import io

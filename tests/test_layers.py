@@ -15,7 +15,8 @@ import pytest
 PACKAGE = Path(__file__).parents[1] / "elastoplast"
 
 #: the layers of docs/architecture.md, in order
-LAYERS = ["base", "mesh", "problem", "fem", "linalg", "certificate", "solvers", "bounds", "adapt", "io", "cli"]
+LAYERS = ["base", "mesh", "problem", "fem", "linalg", "certificate", "solvers", "bounds", "adapt", "io", "plots", "studies",
+          "cli"]
 BASE = {"errors", "limits", "options", "version"}
 #: exceptions stated in docs/architecture.md: (importing layer, imported module)
 ALLOWED = {("problem", "elastoplast.fem.material")}

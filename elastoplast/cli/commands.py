@@ -10,9 +10,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK, outcome
-from elastoplast.errors import FIELD_WIDTH, InputError, elide
+from elastoplast.errors import FIELD_WIDTH, InputError, elide, figure
 from elastoplast.cli.loading_path import has_path, refuse_path, solve_path_command
-from elastoplast.cli.printing import discretize_file, figure, problem_line
+from elastoplast.cli.printing import discretize_file, problem_line
 
 
 
@@ -313,7 +313,8 @@ def _campaign(args: argparse.Namespace) -> int:
 
 def _compare(args: argparse.Namespace) -> int:
     from elastoplast.studies.compare import compare
-    from elastoplast.studies.suite import is_suite_dir, suite_command
+    from elastoplast.cli.suite import suite_command
+    from elastoplast.studies.suite import is_suite_dir
     from elastoplast.solvers.registry import method_options
 
     if is_suite_dir(args.store):  # a folder of problem files: performance profiles (cli/suite.py)

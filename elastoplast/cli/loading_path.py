@@ -1,28 +1,24 @@
 """``elastoplast solve`` on a problem with a loading path (``[load] path = [...]``):
 every step solved by the chosen method (:func:`~elastoplast.solvers.path.solve_path`),
-one line per step on stderr, and the path's files written together into ``--out``:
-``summary.json`` (with ``"path"``, one entry per step), ``solution_NNN.vtu`` per step,
-``path.pvd`` to play them in ParaView, and ``path.png``, the load-displacement loop with
-the residual imprint and the initial unloading slope. Also a path case of a campaign
-(:func:`path_case`) and the refusal of the commands that take Hencky's problem only.
+one line per step on stderr, and the path's files written together into ``--out``
+(:func:`~elastoplast.studies.loading_path.write_path_results`); and the refusal of the
+commands that take Hencky's problem only.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Mapping
 
 from elastoplast.cli.exits import outcome
-from elastoplast.cli.printing import discretize_file, figure, problem_line
-from elastoplast.errors import InputError
-from elastoplast.fem.discretize import Discretization
-from elastoplast.io.loading_path import path_solution, path_summary, write_path_files
+from elastoplast.cli.printing import discretize_file, problem_line
+from elastoplast.errors import InputError, figure
 from elastoplast.options import SolverOptions
-from elastoplast.solvers.path import PathResult, PathStep, solve_path
+from elastoplast.solvers.path import PathStep, solve_path
+from elastoplast.studies.loading_path import write_path_results
 
 
 def has_path(data: Any) -> bool:
@@ -47,62 +43,6 @@ def step_line(step: PathStep, n_steps: int) -> str:
     return (f"[{step.index}/{n_steps}] F = {step.force:.6g}{turn}: {sol.status.value}, U = {figure(step.U, '.6g')}, "
             f"KKT {figure(sol.kkt.worst, '.1e')}, {step.yielding} yielding{reverse}, {sol.iterations} iterations, "
             f"{sol.time_s:.2f} s")
-
-
-def plot_path(path: str | Path, record: Mapping[str, Any], title: str = "") -> None:
-    """``path.png``: F against U through the steps (the loop), each step a marker,
-    unloading steps hollow; the residual imprint U_res of the first unloading marked on
-    the U axis, and the initial unloading slope S drawn from the peak down to F = 0."""
-    from matplotlib.figure import Figure
-
-    steps = record["path"]
-    U = [0.0] + [s["U"] for s in steps]
-    F = [0.0] + [s["force"] for s in steps]
-    fig = Figure(figsize=(6.4, 4.6), layout="constrained")
-    ax = fig.add_subplot()
-    ax.plot(U, F, "-", color="0.3", lw=1.2, label="path (backward Euler steps)")
-    load = [s for s in steps if not s["unloading"]]
-    unload = [s for s in steps if s["unloading"]]
-    ax.plot([s["U"] for s in load], [s["force"] for s in load], "o", color="C0", ms=4, label="loading step")
-    ax.plot([s["U"] for s in unload], [s["force"] for s in unload], "o", mfc="none", color="C1", ms=5,
-            label="unloading step")
-    bad = [s for s in steps if s["status"] != "converged"]
-    if bad:
-        ax.plot([s["U"] for s in bad], [s["force"] for s in bad], "x", color="red", ms=9, label="not converged")
-    slope = record.get("unloading_slope")
-    if slope:
-        u0 = slope["U_peak"] - slope["F_peak"] / slope["S"]
-        ax.plot([slope["U_peak"], u0], [slope["F_peak"], 0.0], "--", color="C2", lw=1.2,
-                label=f"initial unloading slope S = {slope['S']:.4g}")
-    imprint = record.get("residual_imprint")
-    if imprint:
-        ax.axvline(imprint["U"], color="C3", lw=0.8, ls=":")
-        ax.plot([imprint["U"]], [imprint["force"]], "s", color="C3", ms=6,
-                label=f"residual imprint U_res = {imprint['U']:.4g} (F = {imprint['force']:.3g})")
-    ax.set_xlabel("U (rigid body's displacement)")
-    ax.set_ylabel("F")
-    ax.set_xlim(left=min(0.0, *U))
-    ax.set_ylim(bottom=0.0)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left")
-    ax.set_title(title, fontsize=10)
-    fig.savefig(path, dpi=120)
-
-
-def write_path_results(out_dir: str | Path, disc: Discretization, result: PathResult, tol: float, *,
-                       field: str = "out") -> dict[str, Any]:
-    """Write the path's files into ``out_dir`` (staged: the folder is replaced only
-    when every file is written) and return the summary."""
-    from elastoplast.io.output import json_text, staged_output
-    from elastoplast.io.provenance import stamp
-
-    record = path_summary(disc, result)
-    with staged_output(out_dir, field) as tmp:
-        record["files"] = write_path_files(tmp, disc, result, tol)
-        record["provenance"] = stamp()
-        (tmp / "summary.json").write_text(json_text(record))
-        plot_path(tmp / "path.png", record, f"{result.method}: {record['message']}")
-    return record
 
 
 def solve_path_command(args: argparse.Namespace, path: Path, data: dict, method: str, opts: SolverOptions) -> int:
@@ -131,24 +71,3 @@ def solve_path_command(args: argparse.Namespace, path: Path, data: dict, method:
     print(f"KKT worst residual over the steps {figure(record['kkt_worst'], '.2e')}, {record['iterations']} "
           f"iterations, {result.time_s:.2f} s -> {Path(args.out) / 'summary.json'}")
     return outcome(result.converged, f"not converged: {record['message']}")
-
-
-def path_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
-    """A campaign case with a loading path: the path solved by the case's method, its
-    answer as one solution (:func:`~elastoplast.io.loading_path.path_solution`: the last step,
-    total displacement, the path's status), ``summary.json`` with the path's summary
-    (``"path"``: every step) and the last step's VTU."""
-    from elastoplast.fem.discretize import discretize
-    from elastoplast.io.output import write_vtu
-    from elastoplast.io.provenance import stamp
-    from elastoplast.solvers.registry import method_options
-
-    disc = discretize(problem)
-    opts = method_options(spec["method"], spec["options"])
-    result = solve_path(disc, problem.path, spec["method"], options=opts)
-    sol = path_solution(result)
-    record = {**path_summary(disc, result), "provenance": stamp()}
-    with tempfile.TemporaryDirectory(prefix="elastoplast-case-") as tmp:
-        write_vtu(Path(tmp) / "solution.vtu", disc, sol)
-        vtu = (Path(tmp) / "solution.vtu").read_bytes()
-    return {"solution": sol, "summary": record, "vtu": vtu}

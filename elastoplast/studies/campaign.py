@@ -19,15 +19,17 @@ the axes::
 :func:`load_campaign` resolves and validates every case before anything runs
 (an :class:`~elastoplast.errors.InputError` naming the axis);
 :func:`run_campaign` runs the cases not yet in the store on a Dask cluster and
-writes each one as it finishes (:mod:`elastoplast.io.store`); :func:`compare` runs
-another method on every stored reference and reports its errors::
+writes each one as it finishes (:mod:`elastoplast.io.store`);
+:func:`~elastoplast.studies.compare.compare` runs another method on every stored
+reference and reports its errors::
 
-    from elastoplast.studies.campaign import compare, load_campaign, run_campaign
     from elastoplast.io.store import Store
+    from elastoplast.studies.campaign import load_campaign, run_campaign
+    from elastoplast.studies.compare import compare
 
     run_campaign(load_campaign("problems/campaign_2d.toml"), "refs")  # local cluster
     store = Store("refs")
-    row = store.rows("status = 'converged' AND json_extract(params, '$.\"load.force\"') = 4315.0")[0]
+    row = store.rows("status = 'converged' AND json_extract(params, ?) = 4315.0", ('$."load.force"',))[0]
     sol = store.load_solution(row["id"])          # an elastoplast Solution
     problem = store.load_problem(row["id"])       # and its Problem
     report = compare("refs", "conic-displacement")  # refs/compare-conic-displacement/
@@ -358,7 +360,7 @@ def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[
     that workers need no shared file system), or ``{"error", "traceback",
     "worker"}`` if anything raised.
     """
-    from elastoplast.cli.loading_path import path_case
+    from elastoplast.studies.loading_path import path_case
     from elastoplast.studies.results import write_files
     from elastoplast.fem.discretize import discretize
     from elastoplast.solvers.registry import solve

@@ -1,4 +1,4 @@
-"""``elastoplast compare SUITE_DIR --method M1 --method M2 ...``: every method on every
+"""Suites (``elastoplast compare SUITE_DIR --method M1 --method M2 ...``): every method on every
 problem file of a folder (a suite of instances), each answer certified at one
 tolerance, and the methods compared by performance profiles and shifted geometric
 means of their times (:mod:`elastoplast.studies.profiles`).
@@ -15,7 +15,6 @@ any method took to solve any instance.
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import time
@@ -23,7 +22,6 @@ import traceback
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK
 from elastoplast.studies.profiles import (
     fraction_solved,
     instances_of,
@@ -279,36 +277,3 @@ def run_suite(suite_dir: str | Path, methods: Sequence[str], *, out: str | Path,
     record["runs"] = records
     write_profile(record, out)
     return record
-
-
-#: the command line's names of run_suite's arguments
-_FLAGS = {"suite_dir": "SUITE_DIR", "methods": "--method", "out": "--out", "tol": "--tol",
-          "time_limit": "--time-limit", "scheduler": "--scheduler", "workers": "--workers", "rho": "--rho",
-          "max_iter": "--max-iter"}
-
-
-def suite_command(args: argparse.Namespace, options: dict[str, Any]) -> int:
-    """``elastoplast compare SUITE_DIR --method M ... --out DIR``: prints the table of
-    ``profile.md``; exit 0 when every method solved every instance, else 1. ``options``:
-    the solver options of the command line (``--tol``, ``--option NAME=VALUE``, ...)."""
-    if args.out is None:
-        raise InputError("--out", "required with a folder of problem files (the profile's folder)")
-    if args.reference_method is not None:
-        raise InputError("--reference-method", "applies to a campaign store, not to a folder of problem files")
-    options = dict(options)
-    tol = options.pop("tol", 1e-6)
-    time_limit = options.pop("time_limit", None)
-    try:
-        record = run_suite(args.store, args.method, out=args.out, tol=tol, time_limit=time_limit, options=options,
-                           scheduler=args.scheduler, n_workers=args.workers, progress=not args.quiet)
-    except InputError as exc:
-        if exc.field in _FLAGS:
-            raise InputError(_FLAGS[exc.field], exc.message) from None
-        if exc.field.startswith("--"):
-            raise
-        raise InputError(f"--option {exc.field}", exc.message) from None
-    print(profile_markdown(record), end="")
-    out = Path(args.out)
-    print(f"-> {out / 'profile.md'}, {out / 'profile.png'}, {out / 'profile.json'}", file=sys.stderr)
-    every = all(t is not None for per in record["times"].values() for t in per.values())
-    return EXIT_OK if every else EXIT_NOT_CONVERGED

@@ -1,4 +1,4 @@
-"""Performance profiles and shifted geometric means (elastoplast/cli/profiles.py)
+"""Performance profiles and shifted geometric means (elastoplast/studies/profiles.py)
 against values computed by hand, and ``elastoplast compare SUITE_DIR`` on a tiny suite."""
 
 from __future__ import annotations

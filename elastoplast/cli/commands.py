@@ -137,7 +137,7 @@ def _solve(args: argparse.Namespace) -> int:
     from elastoplast.solvers.registry import solve
 
     path, data, method, opts = _setup(args)
-    if has_path(data):  # a loading path: every step, its files (cli/paths.py)
+    if has_path(data):  # a loading path: every step, its files (cli/loading_path.py)
         return solve_path_command(args, path, data, method, opts)
     disc = _discretize(path, data, args.quiet, f"method {method}")
     sol = solve(disc, method, opts)

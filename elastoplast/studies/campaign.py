@@ -21,7 +21,8 @@ the axes::
 :func:`run_campaign` runs the cases not yet in the store on a Dask cluster and
 writes each one as it finishes (:mod:`elastoplast.io.store`);
 :func:`~elastoplast.studies.compare.compare` runs another method on every stored
-reference and reports its errors::
+reference and reports its errors (in a script, under ``if __name__ == "__main__":``: the
+local cluster starts its workers as processes, which import the script again)::
 
     from elastoplast.io.store import Store
     from elastoplast.studies.campaign import load_campaign, run_campaign

@@ -33,6 +33,16 @@ from elastoplast.options import SolverOptions
 from elastoplast.solvers.registry import METHODS, method_options, solve
 from elastoplast.solvers.uzawa import UzawaOptions, load_sweep, solve_uzawa
 
+from elastoplast.options import MAX_ITER_CEILING, option
+from elastoplast.solvers.registry import Method
+from elastoplast.certificate.kkt import energy_norm_sq
+from elastoplast.bounds.bracket import element_indicators
+from elastoplast.adapt.loop import adapt as solve_adaptive, uniform as solve_uniform
+from elastoplast.adapt.records import AdaptOptions, AdaptResult, elements_at_gap, fitted_rate
+from elastoplast.io.loading_path import path_summary
+from elastoplast.plots.figures import (draw_indicator, plot_gap_curves, plot_gaps, plot_indicator, plot_path,
+                                       slice_polygons, zoom_window)
+
 from elastoplast.version import __version__ as __version__
 
 __all__ = [
@@ -47,4 +57,12 @@ __all__ = [
     "solve_lower_bound", "static_limit_load", "lower_bound", "lower_bound_kind", "certified_bounds",
     "Bounds", "UpperBound", "choose_delta", "combine", "energy_bounds", "hencky_energy_density", "penetration_bound",
     "u_bracket", "upper_bound", "KinematicBound", "LimitBracket", "LimitOptions", "kinematic_limit_load", "limit_load",
+    # plug-in methods (examples/plugin_method): the method record and its options' declarations
+    "Method", "option", "MAX_ITER_CEILING",
+    # the adaptive loop (ep.solve_adaptive: elastoplast.adapt.loop.adapt; a plain ep.adapt would hide the
+    # subpackage of that name), the certificate's energy norm, loading-path summaries
+    "solve_adaptive", "solve_uniform", "AdaptOptions", "AdaptResult", "elements_at_gap", "fitted_rate",
+    "element_indicators", "energy_norm_sq", "path_summary",
+    # figures (elastoplast.plots: the only module importing matplotlib, lazily)
+    "draw_indicator", "plot_gap_curves", "plot_gaps", "plot_indicator", "plot_path", "slice_polygons", "zoom_window",
 ]

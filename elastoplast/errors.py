@@ -60,3 +60,11 @@ def short_repr(val: Any, width: int = 80) -> str:
     """``repr`` of a user value, cut to one readable line of about ``width`` characters."""
     text = repr(val)
     return text if len(text) <= width else text[: max(width - 20, 10)] + f"... ({len(text)} characters)"
+
+
+def figure(value: Any, spec: str) -> str:
+    """A printed figure; ``n/a`` for one that is not a finite number (a diverged run's NaN)."""
+    try:
+        return format(value, spec) if math.isfinite(value) else "n/a"
+    except (TypeError, ValueError):
+        return "n/a"

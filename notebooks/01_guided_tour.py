@@ -28,9 +28,6 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import elastoplast as ep
-from elastoplast.fem.material import von_mises
-from elastoplast.problem.definition import read_toml
-from elastoplast.certificate.solution import summary
 
 SMALL = os.environ.get("ELASTOPLAST_NOTEBOOK_SMALL") == "1"
 PROBLEMS = Path(ep.__file__).resolve().parents[1] / "problems"
@@ -41,7 +38,7 @@ PROBLEMS = Path(ep.__file__).resolve().parents[1] / "problems"
 # in small mode, coarsen the mesh.
 
 # %%
-data = read_toml(PROBLEMS / "sphere_quarter_3d.toml")
+data = ep.read_toml(PROBLEMS / "sphere_quarter_3d.toml")
 if SMALL:
     data["mesh"]["divisions"] = [5, 5, 5]
 problem = ep.problem_from_dict(data)
@@ -61,13 +58,12 @@ print(f"{disc.n_elements} tetrahedra, {disc.n_contact} contact nodes; E = {m.E:g
 methods = ["conic"] + (["uzawa"] if "uzawa" in ep.METHODS else [])
 sols = {name: ep.solve(disc, name) for name in methods}
 for name, sol in sols.items():
-    s = summary(disc, sol)
+    s = ep.summary(disc, sol)
     print(f"{name:6s} {sol.status.value:10s} U = {sol.U:.6f} mm, worst KKT residual {sol.kkt.worst:.1e}, "
           f"{sol.iterations} iterations, {sol.time_s:.1f} s, plastic volume share {s['plastic_volume_fraction']:.4f}")
 if len(sols) == 2:
     a, b = sols["conic"], sols["uzawa"]
-    from elastoplast.certificate.kkt import energy_norm_sq
-    d = energy_norm_sq(disc, a.sigma - b.sigma, a.xi - b.xi) / energy_norm_sq(disc, a.sigma, a.xi)
+    d = ep.energy_norm_sq(disc, a.sigma - b.sigma, a.xi - b.xi) / ep.energy_norm_sq(disc, a.sigma, a.xi)
     print(f"conic vs Uzawa: stresses differ by {np.sqrt(d):.1e} in the energy norm, U by {abs(a.U - b.U) / a.U:.1e}")
 sol = sols["conic"]
 
@@ -82,7 +78,7 @@ pts, cells = disc.mesh.points, disc.mesh.cells
 on_plane = np.abs(pts[cells][:, :, 1]) < 1e-12
 faces = on_plane.sum(axis=1) == 3
 tri = np.array([c[o] for c, o in zip(cells[faces], on_plane[faces])])
-vm = von_mises(sol.sigma)[faces]
+vm = ep.von_mises(sol.sigma)[faces]
 fig, ax = plt.subplots(figsize=(7, 3.5))
 tpc = ax.tripcolor(pts[:, 0], pts[:, 2], tri, facecolors=vm, cmap="viridis")
 plastic = sol.plastic[faces]

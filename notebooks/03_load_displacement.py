@@ -25,8 +25,6 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import elastoplast as ep
-from elastoplast.fem.material import von_mises
-from elastoplast.certificate.solution import summary
 
 SMALL = os.environ.get("ELASTOPLAST_NOTEBOOK_SMALL") == "1"
 NH = 10 if SMALL else 40
@@ -59,8 +57,8 @@ for F in forces:
     s = ep.solve(d, "conic")
     e = ep.solve(disc_at(F, 1e12), "conic")
     c = d.mesh.points[d.mesh.cells].mean(axis=1)
-    rows.append({"F": F, "U": s.U, "U_el": e.U, "b": summary(d, s)["contact_radius"],
-                 "b_el": summary(d, e)["contact_radius"], "p": summary(d, s)["max_contact_pressure"],
+    rows.append({"F": F, "U": s.U, "U_el": e.U, "b": ep.summary(d, s)["contact_radius"],
+                 "b_el": ep.summary(d, e)["contact_radius"], "p": ep.summary(d, s)["max_contact_pressure"],
                  "depth": c[s.plastic, 1].max(initial=0.0), "width": np.abs(c[s.plastic, 0]).max(initial=0.0),
                  "kkt": max(s.kkt.worst, e.kkt.worst)})
     last = (d, s)
@@ -103,7 +101,7 @@ print(f"plastic zone depth {rows[-1]['depth']:.2f} mm; outermost node of Gamma_0
       f"active: {bool(s.active[np.argmax(r)])}")
 pts = d.mesh.points
 fig, ax = plt.subplots(figsize=(7, 3.5))
-tpc = ax.tripcolor(pts[:, 0], pts[:, 1], d.mesh.cells, facecolors=von_mises(s.sigma), cmap="viridis")
+tpc = ax.tripcolor(pts[:, 0], pts[:, 1], d.mesh.cells, facecolors=ep.von_mises(s.sigma), cmap="viridis")
 ax.triplot(pts[:, 0], pts[:, 1], d.mesh.cells[s.plastic], color="r", lw=0.4)
 ax.set_xlim(-6, 6)
 ax.set_ylim(0, 6)

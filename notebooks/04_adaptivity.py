@@ -33,11 +33,6 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 
 import elastoplast as ep
-from elastoplast.adapt.records import AdaptOptions, elements_at_gap, fitted_rate
-from elastoplast.adapt.loop import adapt, uniform
-from elastoplast.cli.plots import draw_indicator, plot_gap_curves, zoom_window
-from elastoplast.bounds.bracket import element_indicators
-from elastoplast.problem.definition import read_toml
 
 SMALL = os.environ.get("ELASTOPLAST_NOTEBOOK_SMALL") == "1"
 PROBLEMS = Path(ep.__file__).resolve().parents[1] / "problems"
@@ -52,11 +47,11 @@ PROBLEMS = Path(ep.__file__).resolve().parents[1] / "problems"
 # mesh costs a lower-bound program, so small steps waste the budget).
 
 # %%
-data = read_toml(PROBLEMS / "cylinder_2d.toml")
+data = ep.read_toml(PROBLEMS / "cylinder_2d.toml")
 data["mesh"]["divisions"] = [10, 5] if SMALL else [20, 10]
 cylinder = ep.problem_from_dict(data)
-options = AdaptOptions(rtol=3e-2 if SMALL else 2e-3, theta=0.5)
-run = adapt(cylinder, options, report=lambda s: print(s.line()))
+options = ep.AdaptOptions(rtol=3e-2 if SMALL else 2e-3, theta=0.5)
+run = ep.solve_adaptive(cylinder, options, report=lambda s: print(s.line()))
 print(run.reason)
 
 # %% [markdown]
@@ -69,13 +64,13 @@ print(run.reason)
 # that grading. Against an ungraded mesh the factor is about 19 (`benchmarks/adapt/grading.md`).
 
 # %%
-uni = uniform(cylinder, options, max_elements=run.final.n_elements)
+uni = ep.solve_uniform(cylinder, options, max_elements=run.final.n_elements)
 gap_u = uni.final.gap_rel
-n_a = elements_at_gap(run.steps, gap_u)
+n_a = ep.elements_at_gap(run.steps, gap_u)
 print(f"uniform: {uni.final.n_elements:,} triangles for a gap of {gap_u:.2e}; adaptive reaches it with "
       f"{n_a:,.0f} ({uni.final.n_elements / n_a:.1f}x fewer)")
 fig, ax = plt.subplots(figsize=(6, 4))
-plot_gap_curves(ax, {"adaptive, θ = 0.5, growth ≥ 1.5": run.steps, "uniform": uni.steps})
+ep.plot_gap_curves(ax, {"adaptive, θ = 0.5, growth ≥ 1.5": run.steps, "uniform": uni.steps})
 ax.set_title("2D cylinder: certified relative gap")
 plt.show()
 
@@ -90,10 +85,10 @@ plt.show()
 
 # %%
 disc, sol = run.disc, run.solution
-eta = element_indicators(disc, run.bounds)
+eta = ep.element_indicators(disc, run.bounds)
 fig, ax = plt.subplots(1, 2, figsize=(12, 4.2), layout="constrained")
-coll = draw_indicator(ax[0], disc, sol, eta, edges=not SMALL)
-draw_indicator(ax[1], disc, sol, eta, window=zoom_window(disc, sol))
+coll = ep.draw_indicator(ax[0], disc, sol, eta, edges=not SMALL)
+ep.draw_indicator(ax[1], disc, sol, eta, window=ep.zoom_window(disc, sol))
 ax[1].legend(loc="upper right", fontsize=8)
 fig.colorbar(coll, ax=ax, label="local gap")
 plt.show()
@@ -110,19 +105,19 @@ print(f"{f.n_elements:,} triangles: energy in [{f.energy_lower:.6g}, {f.energy_u
 # symmetry plane y = 0: the tetrahedra cut by it, coloured by their indicator.
 
 # %%
-data3 = read_toml(PROBLEMS / "sphere_quarter_3d.toml")
+data3 = ep.read_toml(PROBLEMS / "sphere_quarter_3d.toml")
 data3["mesh"]["divisions"] = [3, 3, 3] if SMALL else [4, 4, 4]
 quarter = ep.problem_from_dict(data3)
-run3 = adapt(quarter, AdaptOptions(rtol=1e-3, max_iter=2 if SMALL else 4, bracket="never"),
+run3 = ep.solve_adaptive(quarter, ep.AdaptOptions(rtol=1e-3, max_iter=2 if SMALL else 4, bracket="never"),
              report=lambda s: print(s.line()))
-print(f"{run3.reason}; fitted exponent over the steps p = {fitted_rate(run3.steps):.2f}")
+print(f"{run3.reason}; fitted exponent over the steps p = {ep.fitted_rate(run3.steps):.2f}")
 
 # %%
 d3, s3 = run3.disc, run3.solution
-eta3 = element_indicators(d3, run3.bounds)
+eta3 = ep.element_indicators(d3, run3.bounds)
 fig, ax = plt.subplots(1, 2, figsize=(12, 4.6), layout="constrained")
-coll = draw_indicator(ax[0], d3, s3, eta3, axis=1, value=0.0)
-draw_indicator(ax[1], d3, s3, eta3, axis=1, value=0.0, window=zoom_window(d3, s3, axis=1))
+coll = ep.draw_indicator(ax[0], d3, s3, eta3, axis=1, value=0.0)
+ep.draw_indicator(ax[1], d3, s3, eta3, axis=1, value=0.0, window=ep.zoom_window(d3, s3, axis=1))
 ax[0].set_title("section y = 0 (symmetry plane)")
 ax[1].legend(loc="upper right", fontsize=8)
 fig.colorbar(coll, ax=ax, label="local gap")

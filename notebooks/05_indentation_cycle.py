@@ -32,9 +32,6 @@ import numpy as np
 from matplotlib.collections import PolyCollection
 
 import elastoplast as ep
-from elastoplast.cli.plots import slice_polygons
-from elastoplast.fem.material import von_mises
-from elastoplast.io.paths import path_summary
 
 SMALL = os.environ.get("ELASTOPLAST_NOTEBOOK_SMALL") == "1"
 E, NU, SY, H = 2e5, 0.3, 1200.0, 1e4
@@ -79,7 +76,7 @@ runs = {}
 for name, problem in cases.items():
     disc = ep.discretize(problem)
     result = ep.solve_path(disc, problem.path, "newton", progress=False)
-    runs[name] = (disc, result, path_summary(disc, result))
+    runs[name] = (disc, result, ep.path_summary(disc, result))
     rec = runs[name][2]
     print(f"{name}: {disc.n_elements} elements, {rec['message']}, worst KKT {rec['kkt_worst']:.1e}, "
           f"{result.time_s:.1f} s")
@@ -149,14 +146,14 @@ plt.show()
 fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
 for ax, (name, (disc, result, rec)) in zip(axes, runs.items()):
     low = result.steps[rec["residual_imprint"]["step"] - 1]
-    vm = von_mises(low.solution.sigma)
+    vm = ep.von_mises(low.solution.sigma)
     if disc.dim == 2:
         p = disc.mesh.points
         art = ax.tripcolor(p[:, 0], p[:, 1], disc.mesh.cells, facecolors=vm, cmap="magma")
         ax.set_xlim(-5, 5)
         ax.set_ylim(0, 4)
     else:
-        polys, elements, _ = slice_polygons(disc.mesh, 1, 0.0)  # the symmetry plane y = 0
+        polys, elements, _ = ep.slice_polygons(disc.mesh, 1, 0.0)  # the symmetry plane y = 0
         art = PolyCollection(polys, array=vm[elements], cmap="magma")
         ax.add_collection(art)
         ax.set_xlim(0, 3)
@@ -221,7 +218,7 @@ def sneddon(rec):
 
 elastic = problem_3d({"path": cycle(F3)}, yield_stress=1e9)
 d_el = ep.discretize(elastic)
-rec_el = path_summary(d_el, ep.solve_path(d_el, elastic.path, "newton", progress=False))
+rec_el = ep.path_summary(d_el, ep.solve_path(d_el, elastic.path, "newton", progress=False))
 for label, rec in (("elasto-plastic", runs["3D sphere (quarter)"][2]), ("elastic block", rec_el)):
     a, S, S_sneddon = sneddon(rec)
     print(f"{label}: a = {a:.3f} mm at the maximum; measured S = {S:.4g} N/mm, Sneddon 2 E* a / 4 = "

@@ -16,7 +16,7 @@ import elastoplast.references.certified as bracket_module
 import elastoplast.cli.adapt as adapt_command
 from elastoplast.adapt.budget import FIT_STEPS, affordable_elements, next_mesh, predicted_seconds, theta_marking
 from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate, run_bracket
-from elastoplast.cli.plots import outline_segments, plot_indicator, slice_polygons
+from elastoplast.plots.figures import outline_segments, plot_indicator, slice_polygons
 from elastoplast.adapt.loop import adapt, uniform
 from elastoplast.errors import InputError
 from elastoplast.mesh.refinement import dorfler_mark, refine

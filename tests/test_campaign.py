@@ -26,8 +26,8 @@ import pytest
 import elastoplast as ep
 from elastoplast.certificate.kkt import energy_norm_sq
 from elastoplast.solvers.registry import Method
-from elastoplast.cli.compare import compare
-from elastoplast.cli.campaign import load_campaign, run_campaign
+from elastoplast.studies.compare import compare
+from elastoplast.studies.campaign import load_campaign, run_campaign
 from elastoplast.cli.main import main
 from elastoplast.io.store import ERROR, Store, resolve
 

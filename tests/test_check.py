@@ -1,5 +1,5 @@
 """``elastoplast check``: the KKT certificate of an answer computed anywhere
-(elastoplast/cli/check.py), on a small 2D problem (861 nodes, 1600 triangles)."""
+(elastoplast/cli/check.py, io/answers.py, studies/answer.py), on a small 2D problem (861 nodes, 1600 triangles)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,9 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast.cli.check import certify_answer, read_answer, run_check
+from elastoplast.cli.check import run_check
+from elastoplast.io.answers import read_answer
+from elastoplast.studies.answer import certify_answer
 from elastoplast.cli.commands import COMMANDS
 from elastoplast.cli.main import main
 from elastoplast.errors import InputError

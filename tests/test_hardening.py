@@ -18,7 +18,7 @@ from elastoplast.cli.main import main
 from elastoplast.solvers.loop import within_tolerance
 from elastoplast.options import LOOSEST_TOL, MAX_ITER_CEILING, TIGHTEST_TOL
 from elastoplast.io.output import OUTPUT_MARKER, json_text
-from elastoplast.cli.results import write_results
+from elastoplast.studies.results import write_results
 
 from conftest import PROBLEMS, build
 from test_cli import small_cylinder, write_toml
@@ -261,7 +261,7 @@ def test_failed_write_leaves_the_earlier_output_intact(small_disc, tmp_path, mon
     def broken_vtu(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr("elastoplast.cli.results.write_vtu", broken_vtu)
+    monkeypatch.setattr("elastoplast.studies.results.write_vtu", broken_vtu)
     with pytest.raises(OSError):
         write_results(out, small_disc, sol)
     assert (out / "summary.json").read_text() == before
@@ -294,7 +294,7 @@ def test_absurd_force_is_refused(problem_file, tmp_path, capsys):
 def test_campaign_checks_problem_dependent_options_before_running(tmp_path):
     """Uzawa's step must lie below 2 / lambda_max(C) of the material: a campaign point
     beyond it is refused when the campaign is loaded, naming the axis."""
-    from elastoplast.cli.campaign import load_campaign
+    from elastoplast.studies.campaign import load_campaign
 
     path = tmp_path / "c.toml"
     path.write_text(f'[campaign]\nproblem = "{PROBLEMS / "cylinder_2d.toml"}"\n[mesh]\ndivisions = [20, 10]\n'
@@ -399,7 +399,7 @@ def test_option_of_the_wrong_type_is_refused(problem_file, tmp_path, capsys):
 def test_campaign_refuses_an_adaptive_target_with_h0_before_running(tmp_path):
     """An `[adapt]` table on an H = 0 problem ran, and was stored as a failed case;
     adapt cannot run it, so the point is refused when the campaign is loaded."""
-    from elastoplast.cli.campaign import load_campaign
+    from elastoplast.studies.campaign import load_campaign
     from test_commands import half_punch
 
     write_toml(tmp_path / "p.toml", half_punch())
@@ -500,7 +500,7 @@ def test_full_disk_names_out_and_keeps_the_earlier_output(problem_file, tmp_path
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr("elastoplast.cli.results.write_vtu", full)
+    monkeypatch.setattr("elastoplast.studies.results.write_vtu", full)
     code, line = run(capsys, "solve", problem_file, "--quiet", "--out", out)
     assert code == 2 and line.startswith("error: --out:") and "No space left" in line, line
     assert sorted(p.name for p in out.iterdir()) == before

@@ -17,7 +17,7 @@ import pytest
 
 import elastoplast as ep
 from elastoplast.bounds.lower import LowerBoundOptions, check_lower_bound_size
-from elastoplast.cli.campaign import load_campaign
+from elastoplast.studies.campaign import load_campaign
 from elastoplast.cli.main import build_parser, main
 from elastoplast.errors import FIELD_WIDTH, MESSAGE_WIDTH, InputError, elide
 from elastoplast.io.store import Store

@@ -16,6 +16,7 @@ PACKAGE = Path(__file__).parents[1] / "elastoplast"
 
 #: the layers of docs/architecture.md, in order
 LAYERS = ["base", "mesh", "problem", "fem", "linalg", "certificate", "solvers", "bounds", "references", "adapt", "io",
+          "plots", "studies",
           "cli"]
 BASE = {"errors", "limits", "options", "version"}
 #: exceptions stated in docs/architecture.md: (importing layer, imported module)
@@ -95,3 +96,28 @@ def test_the_checker_sees_a_wrong_import(tmp_path):
     bad.write_text("def f():\n    from elastoplast.cli.main import main\n    return main\n")
     (line, target), = imports(bad)
     assert line == 2 and LAYERS.index(layer_of(target)) > LAYERS.index("fem")
+
+
+def third_party_imports(path: Path) -> set[str]:
+    """The top-level names of every module imported anywhere in ``path``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.add(node.module.split(".")[0])
+        elif isinstance(node, ast.Import):
+            found |= {a.name.split(".")[0] for a in node.names}
+    return found
+
+
+def test_only_plots_imports_matplotlib():
+    """docs/architecture.md: plots/ is the one layer drawing figures; the others return values."""
+    drawing = sorted(m for m, p in MODULES.items() if "matplotlib" in third_party_imports(p))
+    assert drawing and all(m.startswith("elastoplast.plots") for m in drawing), drawing
+
+
+def test_the_matplotlib_rule_sees_an_import(tmp_path):
+    """The rule can fail: a matplotlib import inside a function is found."""
+    bad = tmp_path / "bad.py"
+    bad.write_text("def f():\n    from matplotlib.figure import Figure\n    return Figure\n")
+    assert "matplotlib" in third_party_imports(bad)

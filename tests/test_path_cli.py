@@ -194,7 +194,7 @@ def test_imprint_and_unloading_slope_follow_their_definitions(solved):
 def test_the_summary_reads_the_imprint_as_the_path_result_does():
     """Two cycles: the imprint is U at the end of the last unloading, as
     PathResult.residual_imprint() gives it; the slope is the first unloading step's secant."""
-    from elastoplast.io.paths import residual_imprint, unloading_slope
+    from elastoplast.io.loading_path import residual_imprint, unloading_slope
 
     problem = problem_of(path_dict(path=[F, 0.3 * F, 0.1 * F, F, 1.1 * F, 0.2 * F], divisions=(12, 6)))
     result = ep.solve_path(ep.discretize(problem), problem.path, "newton")
@@ -272,7 +272,7 @@ def test_commands_for_hencky_refuse_a_path(tmp_path, capsys, argv):
 def path_store(tmp_path_factory):
     from distributed import Client, LocalCluster
 
-    from elastoplast.cli.campaign import load_campaign, run_campaign
+    from elastoplast.studies.campaign import load_campaign, run_campaign
 
     tmp = tmp_path_factory.mktemp("store")
     paths = [[F, F / 3, 1.2 * F], [0.5 * F, F]]
@@ -307,7 +307,7 @@ def test_a_campaign_stores_one_record_per_path(path_store):
 
 
 def test_compare_reports_a_path_step_by_step(path_store, tmp_path):
-    from elastoplast.cli.compare import compare
+    from elastoplast.studies.compare import compare
 
     out, paths, client = path_store
     report = compare(out, "conic", client=client, progress=False, out=tmp_path / "cmp")
@@ -323,7 +323,7 @@ def test_compare_reports_a_path_step_by_step(path_store, tmp_path):
 
 
 def test_a_suite_times_a_path_as_one_instance(tmp_path):
-    from elastoplast.cli.suite import run_instance
+    from elastoplast.studies.suite import run_instance
 
     problem = write_toml(tmp_path / "p.toml", path_dict(path=[F, 0.5 * F, F], divisions=(12, 6)))
     rec = run_instance({"method": "newton", "options": {"tol": 1e-8, "progress": False}, "problem": str(problem),

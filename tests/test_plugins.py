@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from elastoplast.cli.campaign import load_campaign, run_campaign
-from elastoplast.cli.compare import compare
+from elastoplast.studies.campaign import load_campaign, run_campaign
+from elastoplast.studies.compare import compare
 from elastoplast.cli.main import main
 from elastoplast.io.store import Store
 from elastoplast.solvers.plugins import GROUP, PluginError

@@ -1,4 +1,4 @@
-"""Performance profiles and shifted geometric means (elastoplast/cli/profiles.py)
+"""Performance profiles and shifted geometric means (elastoplast/studies/profiles.py)
 against values computed by hand, and ``elastoplast compare SUITE_DIR`` on a tiny suite."""
 
 from __future__ import annotations
@@ -9,15 +9,15 @@ import math
 import pytest
 
 from elastoplast.cli.main import main
-from elastoplast.cli.plots import plot_profile
-from elastoplast.cli.profiles import (
+from elastoplast.plots.figures import plot_profile
+from elastoplast.studies.profiles import (
     fraction_solved,
     performance_profile,
     performance_ratios,
     profile_taus,
     shifted_geometric_mean,
 )
-from elastoplast.cli.suite import is_solved, is_suite_dir, profile_markdown, profile_record
+from elastoplast.studies.suite import is_solved, is_suite_dir, profile_markdown, profile_record
 
 #: two methods, three instances, one failure (A on p3)
 TIMES = {"A": {"p1": 1.0, "p2": 4.0, "p3": None},

@@ -44,7 +44,7 @@ import numpy as np
 import elastoplast as ep
 from elastoplast.adapt.records import AdaptOptions, Step, elements_at_gap, fitted_rate
 from elastoplast.adapt.loop import adapt, uniform
-from elastoplast.cli.plots import plot_gap_curves, plot_indicator
+from elastoplast.plots.figures import plot_gap_curves, plot_indicator
 from elastoplast.problem.definition import read_toml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))

@@ -51,7 +51,7 @@ def child(spec: dict) -> dict:
     import warnings
 
     import elastoplast as ep
-    from elastoplast.cli.campaign import warm_up
+    from elastoplast.studies.campaign import warm_up
 
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()

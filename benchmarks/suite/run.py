@@ -34,10 +34,10 @@ TITLE = "Performance profiles on the suite of instances"
 def child(spec: dict) -> dict:
     """One method on one instance: warm the method up (its first imports), then arm
     the hard limit (SIGALRM's default action ends the process, even inside native
-    code) and solve; the record of elastoplast.cli.suite.run_instance with the
+    code) and solve; the record of elastoplast.studies.suite.run_instance with the
     process's peak memory."""
-    from elastoplast.cli.campaign import warm_up
-    from elastoplast.cli.suite import run_instance
+    from elastoplast.studies.campaign import warm_up
+    from elastoplast.studies.suite import run_instance
 
     warm_up([spec["method"]])
     signal.alarm(max(1, math.ceil(spec["hard_limit"])))
@@ -81,7 +81,7 @@ def run(mode: str, out: Path, time_limit: float | None = None, tol: float = 1e-6
             print(f"{name} ({ELEMENTS[name]:,}) {method}: {rec['status']}"
                   + (f" {rec['time_s']:.3g} s" if rec.get("time_s") is not None else "")
                   + f" [process {wall:.1f} s]", flush=True)
-    from elastoplast.cli.suite import profile_record
+    from elastoplast.studies.suite import profile_record
 
     record = profile_record(runs, tol, time_limit, suite="problems/suite")
     return {**record, "mode": mode, "hard_limit_s": hard, "max_elements": max_elements, "runs": runs,
@@ -89,7 +89,7 @@ def run(mode: str, out: Path, time_limit: float | None = None, tol: float = 1e-6
 
 
 def render(res: dict) -> str:
-    from elastoplast.cli.suite import profile_markdown
+    from elastoplast.studies.suite import profile_markdown
 
     body = profile_markdown(res)
     if res.get("left_out"):
@@ -105,7 +105,7 @@ def render(res: dict) -> str:
 
 
 def plots(res: dict, out: Path) -> None:
-    from elastoplast.cli.plots import plot_profile
+    from elastoplast.plots.figures import plot_profile
 
     plot_profile(res["profile"], out / "profile.png", taus=res["taus"],
                  title=f"{len(res['instances'])} instances, KKT ≤ {res['tol']:g}, time limit {res['time_limit']:g} s")

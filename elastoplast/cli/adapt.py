@@ -8,7 +8,7 @@ from dataclasses import replace
 
 from elastoplast.adapt.loop import adapt, uniform
 from elastoplast.adapt.records import AdaptOptions, AdaptResult, Step, fitted_rate
-from elastoplast.cli.plots import plot_gaps, plot_indicator
+from elastoplast.plots.figures import plot_gaps, plot_indicator
 from elastoplast.problem.definition import Problem
 
 
@@ -53,7 +53,7 @@ def run_adapt_command(problem: Problem, options: AdaptOptions, out_dir) -> bool:
     from tqdm.auto import tqdm
 
     from elastoplast.bounds.bracket import gap_fields
-    from elastoplast.cli.results import write_files
+    from elastoplast.studies.results import write_files
     from elastoplast.io.output import json_text, staged_output
     from elastoplast.io.provenance import stamp
     from elastoplast.mesh.base import write_mesh

@@ -10,9 +10,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK, outcome
-from elastoplast.errors import FIELD_WIDTH, InputError, elide
-from elastoplast.cli.paths import has_path, refuse_path, solve_path_command
-from elastoplast.cli.printing import discretize_file, figure, problem_line
+from elastoplast.errors import FIELD_WIDTH, InputError, elide, figure
+from elastoplast.cli.loading_path import has_path, refuse_path, solve_path_command
+from elastoplast.cli.printing import discretize_file, problem_line
 
 
 
@@ -133,11 +133,11 @@ def _discretize(path: Path, data: dict, quiet: bool, what: str):
 
 
 def _solve(args: argparse.Namespace) -> int:
-    from elastoplast.cli.results import write_results
+    from elastoplast.studies.results import write_results
     from elastoplast.solvers.registry import solve
 
     path, data, method, opts = _setup(args)
-    if has_path(data):  # a loading path: every step, its files (cli/paths.py)
+    if has_path(data):  # a loading path: every step, its files (cli/loading_path.py)
         return solve_path_command(args, path, data, method, opts)
     disc = _discretize(path, data, args.quiet, f"method {method}")
     sol = solve(disc, method, opts)
@@ -155,7 +155,7 @@ def _bounds(args: argparse.Namespace) -> int:
     from elastoplast.bounds.bracket import check_lower_bound_fits, gap_fields, lower_kind
     from elastoplast.bounds.lower import SEQUENCE_MEMORY_FACTOR, LowerBoundOptions
     from elastoplast.certificate.solution import Status
-    from elastoplast.cli.results import write_results
+    from elastoplast.studies.results import write_results
     from elastoplast.solvers.registry import check_solvable, solve
 
     path, data, method, opts = _setup(args)
@@ -293,7 +293,7 @@ def _adapt(args: argparse.Namespace) -> int:
 
 
 def _campaign(args: argparse.Namespace) -> int:
-    from elastoplast.cli.campaign import load_campaign, run_campaign
+    from elastoplast.studies.campaign import load_campaign, run_campaign
     from elastoplast.io.store import Store
 
     campaign = load_campaign(args.campaign)
@@ -313,8 +313,9 @@ def _campaign(args: argparse.Namespace) -> int:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from elastoplast.cli.compare import compare
-    from elastoplast.cli.suite import is_suite_dir, suite_command
+    from elastoplast.studies.compare import compare
+    from elastoplast.cli.suite import suite_command
+    from elastoplast.studies.suite import is_suite_dir
     from elastoplast.solvers.registry import method_options
 
     if is_suite_dir(args.store):  # a folder of problem files: performance profiles (cli/suite.py)

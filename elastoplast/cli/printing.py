@@ -2,20 +2,11 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
 from elastoplast.fem.discretize import Discretization, discretize
 from elastoplast.problem.definition import problem_from_dict
-
-
-def figure(value: Any, spec: str) -> str:
-    """A printed figure; ``n/a`` for one that is not a finite number (a diverged run's NaN)."""
-    try:
-        return format(value, spec) if math.isfinite(value) else "n/a"
-    except (TypeError, ValueError):
-        return "n/a"
 
 
 def discretize_file(path: Path, data: dict) -> Discretization:

@@ -48,8 +48,6 @@ import numpy as np
 import scipy.sparse as sp
 
 import elastoplast as ep
-from elastoplast.options import MAX_ITER_CEILING, option
-from elastoplast.solvers.registry import Method
 
 #: iterations between two certificates, for the plain function ``run``
 CHECK_EVERY = 50
@@ -59,8 +57,8 @@ CHECK_EVERY = 50
 class JacobiOptions(ep.SolverOptions):
     """The options of :data:`METHOD`: the base ones, with more iterations by default."""
 
-    max_iter: int = option(100_000, int, "iteration limit", lo=1, hi=MAX_ITER_CEILING)
-    check_every: int = option(CHECK_EVERY, int, "iterations between two certificates", lo=1, hi=10_000)
+    max_iter: int = ep.option(100_000, int, "iteration limit", lo=1, hi=ep.MAX_ITER_CEILING)
+    check_every: int = ep.option(CHECK_EVERY, int, "iterations between two certificates", lo=1, hi=10_000)
 
 
 def step_and_metric(disc: ep.Discretization) -> tuple[float, np.ndarray]:
@@ -108,4 +106,4 @@ def run(disc: ep.Discretization, options: ep.SolverOptions) -> tuple[np.ndarray,
 
 
 #: the same method with its own options: ``--method jacobi_uzawa:METHOD``, or the entry point
-METHOD = Method("jacobi-uzawa", run, JacobiOptions, "projected gradient on (D) in the Jacobi metric, fixed step")
+METHOD = ep.Method("jacobi-uzawa", run, JacobiOptions, "projected gradient on (D) in the Jacobi metric, fixed step")

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from elastoplast.certificate.solution import Solution, summary
-from elastoplast.cli.plots import plot_convergence
+from elastoplast.plots.figures import plot_convergence
 from elastoplast.fem.discretize import Discretization
 from elastoplast.io.output import json_text, staged_output, write_vtu
 

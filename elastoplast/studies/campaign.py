@@ -19,15 +19,18 @@ the axes::
 :func:`load_campaign` resolves and validates every case before anything runs
 (an :class:`~elastoplast.errors.InputError` naming the axis);
 :func:`run_campaign` runs the cases not yet in the store on a Dask cluster and
-writes each one as it finishes (:mod:`elastoplast.io.store`); :func:`compare` runs
-another method on every stored reference and reports its errors::
+writes each one as it finishes (:mod:`elastoplast.io.store`);
+:func:`~elastoplast.studies.compare.compare` runs another method on every stored
+reference and reports its errors (in a script, under ``if __name__ == "__main__":``: the
+local cluster starts its workers as processes, which import the script again)::
 
-    from elastoplast.cli.campaign import compare, load_campaign, run_campaign
     from elastoplast.io.store import Store
+    from elastoplast.studies.campaign import load_campaign, run_campaign
+    from elastoplast.studies.compare import compare
 
     run_campaign(load_campaign("problems/campaign_2d.toml"), "refs")  # local cluster
     store = Store("refs")
-    row = store.rows("status = 'converged' AND json_extract(params, '$.\"load.force\"') = 4315.0")[0]
+    row = store.rows("status = 'converged' AND json_extract(params, ?) = 4315.0", ('$."load.force"',))[0]
     sol = store.load_solution(row["id"])          # an elastoplast Solution
     problem = store.load_problem(row["id"])       # and its Problem
     report = compare("refs", "conic-displacement")  # refs/compare-conic-displacement/
@@ -358,8 +361,8 @@ def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[
     that workers need no shared file system), or ``{"error", "traceback",
     "worker"}`` if anything raised.
     """
-    from elastoplast.cli.paths import path_case
-    from elastoplast.cli.results import write_files
+    from elastoplast.studies.loading_path import path_case
+    from elastoplast.studies.results import write_files
     from elastoplast.fem.discretize import discretize
     from elastoplast.solvers.registry import solve
 
@@ -392,7 +395,7 @@ def adaptive_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
     from elastoplast.adapt.records import AdaptOptions
     from elastoplast.bounds.bracket import gap_fields
     from elastoplast.certificate.solution import Status
-    from elastoplast.cli.results import write_files
+    from elastoplast.studies.results import write_files
     from elastoplast.io.output import json_text
     from elastoplast.mesh.base import write_mesh
 

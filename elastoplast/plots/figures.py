@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -217,7 +217,7 @@ def plot_indicator(path, disc: Discretization, solution: Solution, bounds: Bound
 
 
 def plot_comparison(comparison, path: str | Path) -> None:
-    """Errors (log scale) and time ratios per reference case of a :class:`~elastoplast.cli.compare.Comparison`,
+    """Errors (log scale) and time ratios per reference case of a :class:`~elastoplast.studies.compare.Comparison`,
     written as PNG."""
     import io
 
@@ -286,7 +286,7 @@ def _positive(values: list[Any]) -> np.ndarray:
 
 
 def plot_profile(profile: dict[str, list[float]], path: str | Path, *, taus: list[float], title: str = "") -> None:
-    """Performance profiles (:func:`~elastoplast.cli.profiles.performance_profile`):
+    """Performance profiles (:func:`~elastoplast.studies.profiles.performance_profile`):
     one step curve per method, the fraction of instances solved within a factor τ of
     the best method against log2 τ, written as PNG."""
     import io
@@ -309,3 +309,43 @@ def plot_profile(profile: dict[str, list[float]], path: str | Path, *, taus: lis
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=120)
     atomic_write(path, buf.getvalue())
+
+
+def plot_path(path: str | Path, record: Mapping[str, Any], title: str = "") -> None:
+    """``path.png``: F against U through the steps (the loop), each step a marker,
+    unloading steps hollow; the residual imprint U_res of the first unloading marked on
+    the U axis, and the initial unloading slope S drawn from the peak down to F = 0."""
+    from matplotlib.figure import Figure
+
+    steps = record["path"]
+    U = [0.0] + [s["U"] for s in steps]
+    F = [0.0] + [s["force"] for s in steps]
+    fig = Figure(figsize=(6.4, 4.6), layout="constrained")
+    ax = fig.add_subplot()
+    ax.plot(U, F, "-", color="0.3", lw=1.2, label="path (backward Euler steps)")
+    load = [s for s in steps if not s["unloading"]]
+    unload = [s for s in steps if s["unloading"]]
+    ax.plot([s["U"] for s in load], [s["force"] for s in load], "o", color="C0", ms=4, label="loading step")
+    ax.plot([s["U"] for s in unload], [s["force"] for s in unload], "o", mfc="none", color="C1", ms=5,
+            label="unloading step")
+    bad = [s for s in steps if s["status"] != "converged"]
+    if bad:
+        ax.plot([s["U"] for s in bad], [s["force"] for s in bad], "x", color="red", ms=9, label="not converged")
+    slope = record.get("unloading_slope")
+    if slope:
+        u0 = slope["U_peak"] - slope["F_peak"] / slope["S"]
+        ax.plot([slope["U_peak"], u0], [slope["F_peak"], 0.0], "--", color="C2", lw=1.2,
+                label=f"initial unloading slope S = {slope['S']:.4g}")
+    imprint = record.get("residual_imprint")
+    if imprint:
+        ax.axvline(imprint["U"], color="C3", lw=0.8, ls=":")
+        ax.plot([imprint["U"]], [imprint["force"]], "s", color="C3", ms=6,
+                label=f"residual imprint U_res = {imprint['U']:.4g} (F = {imprint['force']:.3g})")
+    ax.set_xlabel("U (rigid body's displacement)")
+    ax.set_ylabel("F")
+    ax.set_xlim(left=min(0.0, *U))
+    ax.set_ylim(bottom=0.0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    ax.set_title(title, fontsize=10)
+    fig.savefig(path, dpi=120)

@@ -12,8 +12,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from elastoplast.cli.campaign import cluster_client, gather_results, check_cluster
-from elastoplast.cli.plots import plot_comparison
+from elastoplast.studies.campaign import cluster_client, gather_results, check_cluster
+from elastoplast.plots.figures import plot_comparison
 from elastoplast.errors import InputError
 from elastoplast.io.output import check_output_dir, json_text, staged_output
 from elastoplast.io.store import ERROR, Store, atomic_write, rebuild_problem, resolve
@@ -51,7 +51,7 @@ def compare_problem(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray], r
     try:
         disc = discretize(rebuild_problem(spec, arrays))
         if spec.get("path") is not None:  # a loading path: every step, compared step by step in compare()
-            from elastoplast.io.paths import path_solution
+            from elastoplast.io.loading_path import path_solution
             from elastoplast.solvers.path import solve_path
 
             result = solve_path(disc, spec["path"], spec["method"], **spec["options"])

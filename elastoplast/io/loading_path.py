@@ -3,7 +3,7 @@ per step and the ParaView collection ``path.pvd`` that plays them, the path's
 ``summary.json`` record, and the two figures read off a load-displacement loop (the
 residual imprint and the initial elastic unloading slope).
 
-The plot itself is drawn by the command line (:mod:`elastoplast.cli.paths`); this
+The plot itself is drawn by :func:`elastoplast.plots.figures.plot_path`; this
 module only computes and writes what it is given.
 """
 

@@ -127,7 +127,7 @@ def test_a_long_sweep_axis_and_campaign_name_are_bounded(problem_file, tmp_path,
 
 
 # ---------------------------------------------------------------------------
-# 2. the status words of the README
+# 2. the status words docs/commands.md promises
 # ---------------------------------------------------------------------------
 
 

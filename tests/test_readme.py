@@ -91,3 +91,17 @@ def test_readme_problem_file_is_the_shipped_one():
     block = re.search(r"```toml\n(.*?)```", README, re.S).group(1)
     named = re.search(r"`(problems/[a-z0-9_]+\.toml)`[^`]*:\s*```toml", README).group(1)
     assert tomllib.loads(block) == read_toml(ROOT / named)
+
+
+def test_links_of_the_readme_and_docs_resolve():
+    """Every relative link of README.md and docs/*.md names a file or folder that exists:
+    the manual moved out of the README, and a page renamed or a module moved must not
+    leave a reader at a dead link."""
+    dead = []
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
+            if re.match(r"[a-z]+:", target) or target.startswith("#"):
+                continue  # a web address or an anchor on the same page
+            if not (page.parent / target.split("#")[0]).exists():
+                dead.append(f"{page.relative_to(ROOT)}: {target}")
+    assert dead == []

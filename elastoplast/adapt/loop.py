@@ -233,15 +233,6 @@ def _bracketed(done: _Bounded, disc: Discretization, solution: Solution, b: Boun
     return replace(done, row=row)
 
 
-def bound_mesh(problem: Problem, options: AdaptOptions, *, bracket: bool, step: int = 0,
-               t_start: float | None = None) -> tuple[Step, Discretization, Solution, Bounds]:
-    """Solve and bound one mesh, cold: the :class:`Step` row and what it was computed from
-    (``t_start``: count the row's seconds from there)."""
-    done = _bound(problem, options, step, None, bracket)
-    row = done.row if t_start is None else replace(done.row, seconds=time.perf_counter() - t_start)
-    return row, done.disc, done.solution, done.bounds
-
-
 # ----------------------------------------------------------------------------
 # the loop
 # ----------------------------------------------------------------------------

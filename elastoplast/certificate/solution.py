@@ -273,7 +273,7 @@ def within_small_strains(disc: Discretization, sol: Solution) -> Solution:
 
 
 def summary(disc: Discretization, sol: Solution) -> dict[str, Any]:
-    """The JSON summary of a solution (keys documented in the README)."""
+    """The JSON summary of a solution (keys documented in docs/outputs.md)."""
     check_solution(disc, sol, "sol")
     vol = disc.volumes
     return {

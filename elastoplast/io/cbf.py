@@ -151,13 +151,6 @@ def cbf_text(prog: CBFProgram) -> str:
     return "\n".join(out).rstrip("\n") + "\n"  # one final newline
 
 
-def write_cbf(path: str | Path, prog: CBFProgram) -> Path:
-    """Write ``prog`` to ``path`` (CBF version :data:`CBF_VERSION`) and return the path."""
-    path = Path(path)
-    path.write_text(cbf_text(prog), encoding="ascii")
-    return path
-
-
 # ----------------------------------------------------------------------------
 # the reader: text in, arrays out
 # ----------------------------------------------------------------------------

@@ -3,7 +3,7 @@
 A :class:`Problem` is fully resolved: a mesh, a material, boundary groups, an
 obstacle and a force, or a loading path (``[load] path = [F_1, F_2, ...]``: one
 backward-Euler step of Prandtl-Reuss' law per force, docs/evolution.md).
-:func:`load_problem` reads the TOML format of the README;
+:func:`load_problem` reads the TOML format of docs/problem-files.md;
 :func:`problem_from_dict` takes the same structure as nested dicts. Every
 complaint about the input is an :class:`InputError` naming the key.
 """

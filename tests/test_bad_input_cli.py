@@ -1,4 +1,4 @@
-"""Hardening, third round, the command line: bounded messages, the status words the
+"""Bad input, third round, the command line: bounded messages, the status words the
 README promises, no NaN printed, a friendlier command line, user paths that the file
 system refuses, and campaign input that used to vanish. Each test gives the exact
 input of the report and asserts the exit code and what the message names."""
@@ -127,7 +127,7 @@ def test_a_long_sweep_axis_and_campaign_name_are_bounded(problem_file, tmp_path,
 
 
 # ---------------------------------------------------------------------------
-# 2. the status words of the README
+# 2. the status words docs/commands.md promises
 # ---------------------------------------------------------------------------
 
 

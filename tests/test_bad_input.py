@@ -1,4 +1,4 @@
-"""Issue 9, hardening: no hang, no wrong answer called converged, no traceback,
+"""Issue 9, bad input: no hang, no wrong answer called converged, no traceback,
 safe output, one option path. Each test names the exact input the issue
 reported and asserts the exit code and the field the message names."""
 

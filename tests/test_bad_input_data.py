@@ -1,4 +1,4 @@
-"""Hardening issue, refusals that hold for the near-degenerate neighbourhood, not only
+"""Bad input, refusals that hold for the near-degenerate neighbourhood, not only
 the exact case: a hardening next to zero, a mesh far from the origin, an inverted
 bracket, obstacle keys the shape ignores, messages that blamed the wrong key, and the
 Python API's argument checks. Each test names the exact input and asserts the exit code

@@ -1,4 +1,4 @@
-"""Hardening of the Python API: every documented function refuses a wrong type, ``None``,
+"""Bad input to the Python API: every documented function refuses a wrong type, ``None``,
 a wrong length or another mesh's object with an ``InputError`` naming the argument,
 never a ``TypeError``, ``AttributeError``, ``IndexError`` or numpy error from deep
 inside. Each case names the exact call that failed that way before, and the field the

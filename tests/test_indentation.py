@@ -103,3 +103,28 @@ def test_plastic_zone_holds_the_elastic_maximum(elastic):
     assert out["plastic_zone_depth"] == centroids[:, 1].max() >= top[1]
     assert out["plastic_zone_radius"] == np.abs(centroids[:, 0]).max() >= top[0]
     assert centroids[:, 1].min() > 0.1 * B  # the zone starts below the surface
+
+
+def test_path_summary_holds_oliver_pharr_of_the_whole_force(tmp_path):
+    # a quarter block (share 1/4) loaded and unloaded elastically: the path's Oliver-Pharr record is the
+    # analysis of its own (U, 4 F) points, and its plot draws
+    from elastoplast.certificate.oliver_pharr import oliver_pharr
+    from elastoplast.cli.paths import plot_path
+    from elastoplast.io.paths import path_summary
+
+    forces = [100.0, 200.0, 170.0, 140.0, 110.0]
+    problem = ep.problem_from_dict({
+        "mesh": {"generator": "graded", "size": [6.0, 6.0, 6.0], "contact_radius": 1.5, "h_contact": 0.4, "h_far": 2.0},
+        "material": {"E": E, "nu": NU, "yield_stress": 1e12, "hardening": E / 10},
+        "obstacle": {"shape": "paraboloid", "radius": 20.0}, "load": {"path": forces}})
+    disc = ep.discretize(problem)
+    result = ep.solve_path(disc, problem.path, "conic")
+    record = path_summary(disc, result)
+    op = record["oliver_pharr"]
+    assert op["force_share"] == record["indentation"]["symmetry_share"] == 0.25
+    again = oliver_pharr([0.0] + [s.U for s in result.steps], [0.0] + [4 * f for f in forces], shape="paraboloid",
+                         E=E, nu=NU, radius=20.0)
+    assert op["S"] == again["S"] and op["F_max"] == 800.0 and op["step_peak"] == 2
+    assert op["E_star"] == pytest.approx(E_STAR)
+    plot_path(tmp_path / "path.png", record)
+    assert (tmp_path / "path.png").stat().st_size > 0

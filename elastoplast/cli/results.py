@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from elastoplast.certificate.indentation import indentation_summary
 from elastoplast.certificate.solution import Solution, summary
 from elastoplast.cli.plots import plot_convergence
 from elastoplast.fem.discretize import Discretization
@@ -28,6 +29,7 @@ def write_files(folder: Path, disc: Discretization, sol: Solution, extra: dict[s
 
     write_vtu(folder / "solution.vtu", disc, sol, **vtu)
     data = summary(disc, sol)
+    data["indentation"] = indentation_summary(disc, sol)
     if sol.history:
         data["history"] = sol.history
     if extra:

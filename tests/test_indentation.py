@@ -128,3 +128,42 @@ def test_path_summary_holds_oliver_pharr_of_the_whole_force(tmp_path):
     assert op["E_star"] == pytest.approx(E_STAR)
     plot_path(tmp_path / "path.png", record)
     assert (tmp_path / "path.png").stat().st_size > 0
+
+
+def test_axisymmetric_sphere_matches_hertz_and_writes_the_revolved_view(tmp_path):
+    # a rigid sphere on the meridian plane of a cylinder 20 a wide: a = (3 F R / (4 E*))^(1/3) (chosen = 1),
+    # p0 = 3 F / (2 pi a^2), p_m = F / (pi a^2), U = a^2 / R and u_z = U / 2 at the edge (Johnson, ch. 4)
+    import meshio
+
+    from elastoplast.cli.results import write_files
+
+    radius = 40.0
+    force = 4 * E_STAR / (3 * radius)
+    problem = ep.problem_from_dict({
+        "mesh": {"axisymmetric": True, "generator": "graded", "size": [20.0, 20.0], "contact_radius": 2.0,
+                 "h_contact": H_CONTACT, "h_far": 2.0},
+        "material": {"E": E, "nu": NU, "yield_stress": 1e12, "hardening": E / 10},
+        "obstacle": {"shape": "sphere", "radius": radius}, "load": {"force": force}})
+    assert dict(problem.boundary.fix_component) == {}  # the axis holds u_r = 0 by itself
+    disc = ep.discretize(problem)
+    sol = ep.solve(disc, "conic")
+    assert sol.converged
+    data = write_files(tmp_path, disc, sol)
+    out = data["indentation"]
+    lo, hi = out["contact_radius_active"], out["contact_radius_free"]
+    assert out["symmetry_share"] == 1.0 and lo <= 1.0 <= hi and hi - lo <= 1.3 * H_CONTACT
+    assert out["mean_contact_pressure"] == pytest.approx(force / (np.pi * 0.25 * (lo + hi) ** 2), rel=1e-12)
+    assert out["mean_contact_pressure"] == pytest.approx(force / np.pi, rel=0.05)
+    assert out["peak_contact_pressure"] == pytest.approx(3 * force / (2 * np.pi), rel=0.05)
+    assert out["sink_in_at_edge"] == pytest.approx(0.5, rel=0.05)
+    assert out["contact_depth_ratio"] == pytest.approx(0.5, rel=0.1)
+    # the revolved view: its volume is the polygonal revolution's, n sin(2 pi / n) sum |T| r_T
+    view = meshio.read(tmp_path / "solution_3d.vtu")
+    n = data["revolved_view"]["sectors"]
+    X = disc.mesh.points[disc.mesh.cells]
+    area = 0.5 * np.abs(np.linalg.det(np.swapaxes(X[:, 1:] - X[:, :1], 1, 2)))
+    from elastoplast.io.revolve import cell_volumes
+    blocks = {c.type: (c.data, None) for c in view.cells}
+    assert cell_volumes(view.points, blocks).sum() == pytest.approx(
+        n * np.sin(2 * np.pi / n) * float(area @ X[:, :, 0].mean(axis=1)), rel=1e-10)
+    assert set(view.cell_data) >= {"stress", "von_mises", "xi", "plastic"}

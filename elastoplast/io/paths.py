@@ -102,14 +102,14 @@ def path_oliver_pharr(disc: Discretization, result: PathResult) -> dict[str, Any
     the path never unloads, in plane strain (no projected area), or for an obstacle
     other than a sphere, paraboloid or cone."""
     obstacle = disc.problem.obstacle
-    axisymmetric = bool(getattr(disc.problem, "axisymmetric", False))
+    axisymmetric = disc.problem.axisymmetric
     if (disc.dim == 2 and not axisymmetric) or obstacle.shape not in SHAPES:
         return None
     steps = [s for s in result.steps if s.converged]
     share = 1.0 if axisymmetric else symmetry_share(disc)
     m = disc.material
     out = oliver_pharr([0.0] + [s.U for s in steps], [0.0] + [s.force / share for s in steps], shape=obstacle.shape,
-                       E=m.E, nu=m.nu, radius=obstacle.radius, half_angle=getattr(obstacle, "half_angle", None))
+                       E=m.E, nu=m.nu, radius=obstacle.radius, half_angle=obstacle.half_angle)
     return None if out is None else {**out, "force_share": share}
 
 
@@ -150,7 +150,8 @@ def path_summary(disc: Discretization, result: PathResult) -> dict[str, Any]:
         "iterations": sum(e["iterations"] for e in entries), "time_s": float(result.time_s),
         "residual_imprint": residual_imprint(result), "unloading_slope": unloading_slope(result),
         "oliver_pharr": path_oliver_pharr(disc, result),
-        "indentation": indentation_summary(disc, path_solution(result)) if result.steps else None,
+        "indentation": (indentation_summary(disc, path_solution(result), axisymmetric=disc.problem.axisymmetric)
+                        if result.steps else None),
         "n_elements": disc.n_elements, "n_nodes": disc.mesh.n_nodes, "dim": disc.dim,
         "path": entries,
     }

@@ -24,6 +24,8 @@ from typing import Mapping
 import numpy as np
 
 from elastoplast.errors import InputError
+from elastoplast.fem.material import von_mises
+from elastoplast.io.output import mandel_to_tensor
 
 #: the sectors of a full revolution by default, and the fewest a capped view keeps
 N_SECTORS = 36
@@ -154,3 +156,26 @@ def write_revolved_vtu(path: str | Path, points: np.ndarray, cells: np.ndarray, 
     meshio.write(Path(path), meshio.Mesh(points3, [(kind, conn) for kind, (conn, _) in blocks.items()],
                                          point_data=pdata, cell_data=cdata))
     return sectors
+
+
+def write_revolved_solution(path: str | Path, disc, sol, n_sectors: int = N_SECTORS,
+                            max_cells: int = MAX_CELLS) -> dict:
+    """``solution_3d.vtu`` of an axisymmetric solution: the fields of ``solution.vtu``
+    (displacement, contact pressure and force; stress in the meridian's frame, von Mises,
+    xi, plastic) on the revolved view; returns ``{"file", "sectors"}``, or the reason the
+    view was not written (``{"file": None, "reason"}``: beyond the cap)."""
+    mesh = disc.mesh
+    try:
+        sectors = sectors_for(mesh.n_elements, n_sectors, max_cells)
+    except InputError as exc:
+        return {"file": None, "reason": str(exc)}
+    pressure = np.zeros(mesh.n_nodes)
+    pressure[disc.contact_nodes] = np.nan_to_num(sol.contact_pressure)
+    force = np.zeros(mesh.n_nodes)
+    force[disc.contact_nodes] = sol.contact_force
+    write_revolved_vtu(path, mesh.points, mesh.cells,
+                       point_data={"displacement": sol.u, "contact_pressure": pressure, "contact_force": force},
+                       cell_data={"stress": mandel_to_tensor(sol.sigma).reshape(-1, 9), "von_mises": von_mises(sol.sigma),
+                                  "xi": sol.xi, "plastic": sol.plastic.astype(np.int32)},
+                       n_sectors=sectors, max_cells=max_cells)
+    return {"file": Path(path).name, "sectors": sectors}

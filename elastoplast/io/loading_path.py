@@ -16,6 +16,8 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from elastoplast.certificate.indentation import indentation_summary, symmetry_share
+from elastoplast.certificate.oliver_pharr import SHAPES, oliver_pharr
 from elastoplast.certificate.solution import Solution, Status, contact_radius, summary
 from elastoplast.fem.discretize import Discretization
 from elastoplast.io.output import write_vtu
@@ -92,6 +94,25 @@ def residual_imprint(result: PathResult) -> dict[str, Any] | None:
             "converged": end.converged}
 
 
+def path_oliver_pharr(disc: Discretization, result: PathResult) -> dict[str, Any] | None:
+    """The Oliver-Pharr figures of the path's first unloading
+    (:func:`~elastoplast.certificate.oliver_pharr.oliver_pharr`) from the converged steps'
+    (U, F), F the whole indenter force (the model's over its symmetry share,
+    ``force_share``); None when
+    the path never unloads, in plane strain (no projected area), or for an obstacle
+    other than a sphere, paraboloid or cone."""
+    obstacle = disc.problem.obstacle
+    axisymmetric = disc.problem.axisymmetric
+    if (disc.dim == 2 and not axisymmetric) or obstacle.shape not in SHAPES:
+        return None
+    steps = [s for s in result.steps if s.converged]
+    share = 1.0 if axisymmetric else symmetry_share(disc)
+    m = disc.material
+    out = oliver_pharr([0.0] + [s.U for s in steps], [0.0] + [s.force / share for s in steps], shape=obstacle.shape,
+                       E=m.E, nu=m.nu, radius=obstacle.radius, half_angle=obstacle.half_angle)
+    return None if out is None else {**out, "force_share": share}
+
+
 def yielded(step: PathStep, disc: Discretization, tol: float) -> np.ndarray:
     """The elements that yield in ``step``: ``dkappa`` above the round-off threshold
     of :func:`~elastoplast.solvers.path.solve_path` (``tol`` times the yield strain)."""
@@ -114,7 +135,8 @@ def path_summary(disc: Discretization, result: PathResult) -> dict[str, Any]:
     the last step, its certificate the last step's), then the path's own, which win
     where both have one: its status and message, its forces (``force`` the largest),
     the last step's U, the worst KKT residual over the steps, the iterations and time
-    of all steps, the residual imprint and the unloading slope, and ``"path"``, one
+    of all steps, the residual imprint and the unloading slope, the Oliver-Pharr figures
+    (:func:`path_oliver_pharr`) and the indentation figures after the last step, and ``"path"``, one
     entry per step in order (:func:`step_entry`)."""
     status, message = path_status(result)
     entries = [step_entry(disc, s) for s in result.steps]
@@ -127,6 +149,9 @@ def path_summary(disc: Discretization, result: PathResult) -> dict[str, Any]:
         "kkt_worst": max((e["kkt_worst"] for e in entries), default=float("nan")),
         "iterations": sum(e["iterations"] for e in entries), "time_s": float(result.time_s),
         "residual_imprint": residual_imprint(result), "unloading_slope": unloading_slope(result),
+        "oliver_pharr": path_oliver_pharr(disc, result),
+        "indentation": (indentation_summary(disc, path_solution(result), axisymmetric=disc.problem.axisymmetric)
+                        if result.steps else None),
         "n_elements": disc.n_elements, "n_nodes": disc.mesh.n_nodes, "dim": disc.dim,
         "path": entries,
     }

@@ -314,7 +314,8 @@ def plot_profile(profile: dict[str, list[float]], path: str | Path, *, taus: lis
 def plot_path(path: str | Path, record: Mapping[str, Any], title: str = "") -> None:
     """``path.png``: F against U through the steps (the loop), each step a marker,
     unloading steps hollow; the residual imprint U_res of the first unloading marked on
-    the U axis, and the initial unloading slope S drawn from the peak down to F = 0."""
+    the U axis, the initial unloading slope S drawn from the peak down to F = 0, and the
+    Oliver-Pharr power law fitted to the first unloading (when the summary has one)."""
     from matplotlib.figure import Figure
 
     steps = record["path"]
@@ -336,6 +337,11 @@ def plot_path(path: str | Path, record: Mapping[str, Any], title: str = "") -> N
         u0 = slope["U_peak"] - slope["F_peak"] / slope["S"]
         ax.plot([slope["U_peak"], u0], [slope["F_peak"], 0.0], "--", color="C2", lw=1.2,
                 label=f"initial unloading slope S = {slope['S']:.4g}")
+    op = record.get("oliver_pharr")
+    if op and op.get("alpha") is not None:  # the fitted power law, in the model's force
+        h = np.linspace(max(op["h_f"], min(U)), op["h_max"], 60)
+        ax.plot(h, op["force_share"] * op["alpha"] * (h - op["h_f"]) ** op["m"], "-", color="C4", lw=1.0,
+                label=f"Oliver-Pharr fit: S = {op['S']:.4g}, E_r / E* = {op['E_r'] / op['E_star']:.3g}")
     imprint = record.get("residual_imprint")
     if imprint:
         ax.axvline(imprint["U"], color="C3", lw=0.8, ls=":")

@@ -24,6 +24,7 @@ from elastoplast.limits import as_path, read_bytes
 from elastoplast.errors import InputError
 from elastoplast.fem.material import Material
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
+from elastoplast.mesh.graded import graded_mesh, symmetry_planes
 from elastoplast.errors import finite_float, short_repr
 from elastoplast.problem.expressions import SAFE_FUNCTIONS, compile_expression
 
@@ -376,7 +377,20 @@ def _float_list(section: Mapping, key: str, prefix: str, n: int, default=None) -
     return floats
 
 
-GENERATORS = {"rectangle": 2, "box": 3}
+GENERATORS = {"rectangle": 2, "box": 3, "graded": 0}  # graded: 2D or 3D by the length of size
+
+
+def make_graded_mesh(section: Mapping, prefix: str = "mesh") -> Mesh:
+    """The ``graded`` generator (:func:`~elastoplast.mesh.graded.graded_mesh`): ``size``,
+    ``contact_radius``, ``h_contact`` and ``h_far`` required; the structured grid's keys refused."""
+    for key in ("divisions", "origin", "grading", "contact_center", "pattern"):
+        if key in section:
+            raise InputError(f"{prefix}.{key}", "does not apply to the 'graded' generator (its body starts at the "
+                                                "origin, on the indenter's axis; h_contact and h_far set the sizes)")
+    for key in ("size", "contact_radius", "h_contact", "h_far"):
+        if key not in section:
+            raise InputError(f"{prefix}.{key}", "is required by the 'graded' generator")
+    return graded_mesh(section["size"], section["contact_radius"], section["h_contact"], section["h_far"])
 
 
 def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh", axisymmetric: bool = False) -> Mesh:
@@ -386,7 +400,7 @@ def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh", axisymmetr
     model the generated rectangle starts on the axis (``origin`` [0, 0]) with its
     contact zone centred there (``contact_center`` [0]) unless they are given."""
     _only(section, {"file", "generator", "size", "divisions", "origin", "grading", "contact_radius", "contact_center",
-                    "pattern", "axisymmetric"}, prefix)
+                    "pattern", "axisymmetric", "h_contact", "h_far"}, prefix)
     if ("file" in section) == ("generator" in section):
         raise InputError(prefix, "give exactly one of 'file' or 'generator'")
     if "file" in section:
@@ -402,7 +416,12 @@ def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh", axisymmetr
     gen = section["generator"]
     if not isinstance(gen, str) or gen not in GENERATORS:
         raise InputError(f"{prefix}.generator", f"must be one of {sorted(GENERATORS)}, got {short_repr(gen)}")
+    if gen == "graded":
+        return make_graded_mesh(section, prefix)
     dim = GENERATORS[gen]
+    for key in ("h_contact", "h_far"):
+        if key in section:
+            raise InputError(f"{prefix}.{key}", "only applies to the 'graded' generator")
     for key in ("size", "divisions", "contact_radius"):
         if key not in section:
             raise InputError(f"{prefix}.{key}", "is required")
@@ -416,11 +435,15 @@ def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh", axisymmetr
                            pattern=section.get("pattern", "diagonal"))
 
 
-def default_boundary(mesh: Mesh, axisymmetric: bool = False) -> tuple[tuple[str, ...], tuple[str, ...]]:
+def default_boundary(mesh: Mesh, axisymmetric: bool = False, graded: bool = False) -> tuple[tuple[str, ...],
+                                                                                       tuple[str, ...]]:
     """The paper's setting on a generated block: every face but the bottom clamped (in an
-    axisymmetric model, every face but the bottom and the axis)."""
+    axisymmetric model, every face but the bottom and the axis); on a graded block in
+    plane strain or 3D the symmetry planes (``xmin``, ``ymin``) are not clamped but hold
+    u_x = 0 (u_y = 0): the default ``fix_component``."""
     on_axis = np.abs(mesh.points[:, 0]) <= 1e-9 * float(np.ptp(mesh.points, axis=0).max())
-    clamped = tuple(n for n in mesh.groups if n not in ("bottom", "contact")
+    planes = {n for names in symmetry_planes(mesh.dim).values() for n in names} if graded else set()
+    clamped = tuple(n for n in mesh.groups if n not in ("bottom", "contact") and n not in planes
                     and not (axisymmetric and np.all(on_axis[np.asarray(mesh.groups[n])])))
     return clamped, ("contact",)
 
@@ -429,10 +452,12 @@ FACETS = {2: "lines", 3: "triangles"}
 
 
 def make_boundary(section: Mapping, mesh: Mesh, generated: bool, prefix: str = "boundary",
-                  axisymmetric: bool = False) -> Boundary:
+                  axisymmetric: bool = False, graded: bool = False) -> Boundary:
     _only(section, {"clamped", "contact", "fix_component"}, prefix)
-    default_clamped, default_contact = default_boundary(mesh, axisymmetric) if generated else (None, None)
-    fix_section = _only(section.get("fix_component", {}), set(AXES), f"{prefix}.fix_component")
+    default_clamped, default_contact = default_boundary(mesh, axisymmetric, graded) if generated else (None, None)
+    # the axis of an axisymmetric model holds u_r = 0 by itself: no symmetry plane there
+    default_fix = symmetry_planes(mesh.dim) if graded and not axisymmetric else {}
+    fix_section = _only(section.get("fix_component", default_fix), set(AXES), f"{prefix}.fix_component")
     clamped = _names(section, "clamped", prefix, default_clamped)
     contact = _names(section, "contact", prefix, default_contact)
     fix = {}
@@ -513,7 +538,7 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     mat = _only(data["material"], {"E", "nu", "yield_stress", "hardening"}, "material")
     material = make_material(*(_number(mat, k, "material") for k in ("E", "nu", "yield_stress", "hardening")))
     boundary = make_boundary(data.get("boundary", {}), mesh, generated="generator" in data["mesh"],
-                             axisymmetric=axisymmetric)
+                             axisymmetric=axisymmetric, graded=data["mesh"].get("generator") == "graded")
     if "generator" in data["mesh"]:
         check_generated_contact_zone(mesh, boundary)
     obstacle = make_obstacle(data["obstacle"], mesh.dim, axisymmetric=axisymmetric)

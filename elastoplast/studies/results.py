@@ -5,10 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from elastoplast.certificate.indentation import indentation_summary
 from elastoplast.certificate.solution import Solution, summary
 from elastoplast.plots.figures import plot_convergence
 from elastoplast.fem.discretize import Discretization
 from elastoplast.io.output import json_text, staged_output, write_vtu
+from elastoplast.io.revolve import write_revolved_solution
 
 
 def write_results(out_dir: str | Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None,
@@ -23,11 +25,16 @@ def write_results(out_dir: str | Path, disc: Discretization, sol: Solution, extr
 
 def write_files(folder: Path, disc: Discretization, sol: Solution, extra: dict[str, Any] | None = None,
                 **vtu: Any) -> dict:
-    """The files of :func:`write_results`, written into an existing folder."""
+    """The files of :func:`write_results`, written into an existing folder; for an
+    axisymmetric problem also ``solution_3d.vtu``, the revolved view."""
     from elastoplast.io.provenance import stamp
 
     write_vtu(folder / "solution.vtu", disc, sol, **vtu)
     data = summary(disc, sol)
+    axisymmetric = disc.problem.axisymmetric
+    data["indentation"] = indentation_summary(disc, sol, axisymmetric=axisymmetric)
+    if axisymmetric:
+        data["revolved_view"] = write_revolved_solution(folder / "solution_3d.vtu", disc, sol)
     if sol.history:
         data["history"] = sol.history
     if extra:

@@ -176,6 +176,10 @@ class Problem:
     force: float
     path: tuple[float, ...] | None = None
     axisymmetric: bool = False
+    #: depth control (``[load] displacement`` / ``displacement_path``): the rigid body's U
+    #: prescribed, F the unknown; ``force`` is then only the first force the search tries
+    displacement: float | None = None
+    displacement_path: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.path is not None:
@@ -185,6 +189,13 @@ class Problem:
             raise InputError("obstacle", "the obstacle was made for a"
                              + ("n axisymmetric" if self.obstacle.axisymmetric else " plane or 3D")
                              + " model and the problem is not one (make_obstacle(..., axisymmetric=...))")
+        if self.displacement_path is not None:
+            object.__setattr__(self, "displacement_path",
+                               check_depths(self.displacement_path, "load.displacement_path"))
+
+    @property
+    def depth_controlled(self) -> bool:
+        return self.displacement is not None or self.displacement_path is not None
 
     @property
     def dim(self) -> int:
@@ -198,7 +209,7 @@ class Problem:
         value = _number({"force": force}, "force", "load")
         if not value > 0:
             raise InputError("load.force", f"must be > 0, got {force!r}")
-        return replace(self, force=value, path=None)
+        return replace(self, force=value, path=None, displacement=None, displacement_path=None)
 
     def with_path(self, forces: Sequence[float]) -> "Problem":
         """The same problem under the loading path ``forces``, checked as a problem
@@ -206,7 +217,37 @@ class Problem:
         from dataclasses import replace
 
         path = check_forces(forces, "load.path")
-        return replace(self, force=max(path), path=path)
+        return replace(self, force=max(path), path=path, displacement=None, displacement_path=None)
+
+
+def check_depths(depths: Any, field: str = "load.displacement_path") -> tuple[float, ...]:
+    """The prescribed displacements of a depth path as floats, or an :class:`InputError`
+    naming ``field``: a non-empty list of finite numbers, any sign and order (a depth
+    at or above the unloaded gap is a lift-off, F = 0)."""
+    if isinstance(depths, (str, bytes, Mapping)) or not isinstance(depths, Sequence) and not (
+            isinstance(depths, np.ndarray) and depths.ndim == 1):
+        raise InputError(field, f"must be a list of displacements, got {short_repr(depths)}")
+    if len(depths) == 0:
+        raise InputError(field, "is empty: give at least one displacement")
+    out = []
+    for i, d in enumerate(depths):
+        if isinstance(d, (bool, np.bool_)) or not isinstance(d, (int, float, np.integer, np.floating)):
+            raise InputError(field, f"entry {i + 1} must be a number, got {short_repr(d)}")
+        if not np.isfinite(d):
+            raise InputError(field, f"entry {i + 1} must be finite, got {d!r}")
+        out.append(float(d))
+    return tuple(out)
+
+
+def depth_force_guess(material: Material, mesh: Mesh, depth: float, axisymmetric: bool = False) -> float:
+    """A first force for the root search of depth control (never a result): E* |delta|
+    times the geometric mean of |delta| and the mesh's width to the power d - 2 (a
+    force per unit length in plane strain, a force in 3D and axisymmetric models, d = 3
+    for those), with |delta| a millionth of the width when delta = 0."""
+    e_star = material.E / (1.0 - material.nu ** 2)
+    width = float(np.ptp(mesh.points[:, 0]))
+    length = abs(depth) if depth != 0 else 1e-6 * width
+    return e_star * length * float(np.sqrt(length * width)) ** ((3 if axisymmetric else mesh.dim) - 2)
 
 
 def check_axisymmetric(value: Any, mesh: Mesh) -> bool:
@@ -517,16 +558,31 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     if "generator" in data["mesh"]:
         check_generated_contact_zone(mesh, boundary)
     obstacle = make_obstacle(data["obstacle"], mesh.dim, axisymmetric=axisymmetric)
-    load = _only(data["load"], {"force", "path"}, "load")
-    if "force" in load and "path" in load:
-        raise InputError("load", "give exactly one of 'force' (Hencky's problem) or 'path' (a loading path of "
-                                 "Prandtl-Reuss steps), not both")
+    load = _only(data["load"], {"force", "path", "displacement", "displacement_path"}, "load")
+    given = [k for k in ("force", "path", "displacement", "displacement_path") if k in load]
+    if len(given) > 1:
+        raise InputError(f"load.{given[1]}", f"give exactly one of 'force' (Hencky's problem), 'path' (a loading "
+                                             "path of Prandtl-Reuss steps), 'displacement' (depth control) or "
+                                             f"'displacement_path' (a depth path), not {' and '.join(given)}")
+    if "displacement" in load:
+        delta = load["displacement"]
+        if isinstance(delta, bool) or not isinstance(delta, (int, float)) or not np.isfinite(delta):
+            raise InputError("load.displacement", f"must be a finite number, got {short_repr(delta)}")
+        return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle,
+                       force=depth_force_guess(material, mesh, float(delta), axisymmetric),
+                       displacement=float(delta), axisymmetric=axisymmetric)
+    if "displacement_path" in load:
+        depths = check_depths(load["displacement_path"], "load.displacement_path")
+        return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle,
+                       force=depth_force_guess(material, mesh, max(depths, key=abs), axisymmetric),
+                       displacement_path=depths, axisymmetric=axisymmetric)
     if "path" in load:
         path = check_forces(load["path"], "load.path")
         return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle, force=max(path),
                        path=path, axisymmetric=axisymmetric)
     if "force" not in load:
-        raise InputError("load.force", "is required (or load.path, a loading path of Prandtl-Reuss steps)")
+        raise InputError("load.force", "is required (or load.path, a loading path of Prandtl-Reuss steps, or "
+                                       "load.displacement / load.displacement_path for depth control)")
     force = _number(load, "force", "load")
     if not force > 0:
         raise InputError("load.force", f"must be > 0, got {force!r}")

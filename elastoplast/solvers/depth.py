@@ -21,7 +21,7 @@ the obstacle's origin is).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -30,10 +30,14 @@ from elastoplast.certificate.solution import Solution
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
 from elastoplast.options import SolverOptions
+from elastoplast.solvers.path import PathResult, PathStep, run_path
 from elastoplast.solvers.registry import DEFAULT_METHOD, get_method, given_options, solve
 
 DEPTH_TOL = 1e-7  # default bound on |U - delta| / depth
 MAX_EVALUATIONS = 60
+#: in a path step the unloaded gap is unknown (the state springs back): lift-off is a force
+#: below this share of the path's largest force so far reaching delta (the step is solved there)
+FLOOR_SHARE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -94,58 +98,84 @@ def solve_depth(disc: Discretization, delta: float, method: str = DEFAULT_METHOD
                 force_guess: float | None = None, **values: Any) -> DepthSolution:
     """Solve (2.1) with the rigid body's displacement fixed at ``delta`` by ``method``.
 
-    ``force_guess`` (default ``disc.force``) is the first force tried. The search
-    keeps a bracket [F_lo, F_hi] with U(F_lo) <= delta <= U(F_hi), starting from
-    F_lo = 0 (U(0+) = min psi), and narrows it by regula falsi with the Illinois
-    modification until ``|U - delta| <= depth_tol * depth``. An :class:`InputError`
-    ``load.displacement`` when no force reaches delta (above the limit load).
+    ``delta`` defaults to nothing: give it, or discretise a problem with ``[load]
+    displacement`` and pass ``disc.problem.displacement``. ``force_guess`` (default
+    ``disc.force``) is the first force tried. The search keeps a bracket [F_lo, F_hi]
+    with U(F_lo) <= delta <= U(F_hi), starting from F_lo = 0 (U(0+) = min psi), and
+    narrows it by regula falsi with the Illinois modification until
+    ``|U - delta| <= depth_tol * depth``. An :class:`InputError` ``load.displacement``
+    when no force reaches delta (a solve fails: above the limit load).
     """
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     delta = check_displacement(delta)
-    if disc.problem.path is not None:
-        raise InputError("load.displacement", "depth control solves Hencky's problem here; a depth path is "
-                                              "solved step by step (solve_depth_path)")
-    if not (isinstance(depth_tol, float) and 0 < depth_tol < 1):
-        raise InputError("depth_tol", f"must be a float in (0, 1), got {depth_tol!r}")
+    if disc.problem.displacement_path is not None:
+        raise InputError("load.displacement_path", "is a depth path: solve it with ep.solve_depth_path")
+    check_depth_tol(depth_tol)
     get_method(method)
     opts = given_options(method, options, values)
     touch = float(np.min(disc.psi))
-    depth = delta - touch
-    if depth <= 0:
-        return DepthSolution(delta, 0.0, None, 0.0, True, depth)
+    if delta - touch <= 0:
+        return DepthSolution(delta, 0.0, None, 0.0, True, delta - touch)
+    first = float(force_guess if force_guess is not None else disc.force)
+    if not first > 0:
+        raise InputError("force_guess", f"must be > 0, got {force_guess!r}")
+    return find_force(lambda f: solve(disc.with_force(f), method, opts), delta, 0.0, touch, first,
+                      depth_tol)
+
+
+def check_depth_tol(depth_tol: Any) -> None:
+    if isinstance(depth_tol, bool) or not isinstance(depth_tol, float) or not 0 < depth_tol < 1:
+        raise InputError("depth_tol", f"must be a float in (0, 1), got {depth_tol!r}")
+
+
+def find_force(at, delta: float, lo_f: float, lo_u: float, first: float, depth_tol: float,
+               lo_sol: Solution | None = None) -> DepthSolution:
+    """The force F with U(F) = delta, ``at(F)`` a solve: the bracket starts at
+    (``lo_f``, ``lo_u``) (U(lo_f) = lo_u < delta) and grows from ``first`` by doubling
+    until U >= delta (halving towards lo_f when a solve fails: above the limit load),
+    then regula falsi (Illinois) to ``|U - delta| <= depth_tol * (delta - lo_u)`` at
+    lo_f = 0 (the depth beyond first contact)."""
+    depth = delta - lo_u
     forces: list[float] = []
     depths: list[float] = []
 
-    def at(force: float) -> Solution:
-        sol = solve(disc.with_force(force), method, opts)
+    def solve_at(force: float) -> Solution:
+        if len(forces) >= MAX_EVALUATIONS:
+            raise InputError("load.displacement", f"no force found for U = {delta:g} in {MAX_EVALUATIONS} solves "
+                                                  f"(last F = {forces[-1]:g}, U = {depths[-1]:g})")
+        try:
+            sol = at(force)
+        except InputError as exc:  # a force the checks refuse (above the limit load, too large a pressure)
+            if exc.field != "load.force":
+                raise
+            sol = None
         forces.append(force)
-        depths.append(float(sol.U))
+        depths.append(float("nan") if sol is None else float(sol.U))
         return sol
 
-    lo_f, lo_g = 0.0, touch - delta  # U(0+) = min psi
-    hi_f = float(force_guess if force_guess is not None else disc.force)
-    if not hi_f > 0:
-        raise InputError("force_guess", f"must be > 0, got {force_guess!r}")
-    sol = at(hi_f)
-    while sol.U < delta:  # grow until the bracket holds delta
-        if not sol.converged:
-            raise InputError("load.displacement", f"the solve at F = {hi_f:g} did not converge "
-                                                  f"({sol.status.value}) while looking for U = {delta:g}")
-        lo_f, lo_g = hi_f, float(sol.U) - delta
-        if len(forces) >= MAX_EVALUATIONS:
-            raise InputError("load.displacement", f"no force up to {hi_f:g} reaches U = {delta:g}")
-        hi_f *= 2.0
-        sol = at(hi_f)
+    lo_g = lo_u - delta
+    hi_f = max(first, 2.0 * lo_f)
+    sol = solve_at(hi_f)
+    while sol is None or not sol.converged or sol.U < delta:
+        if sol is None or not sol.converged:  # too far: back towards the bracket's low end
+            hi_f = 0.5 * (lo_f + hi_f)
+        else:
+            lo_f, lo_g, lo_sol = hi_f, float(sol.U) - delta, sol
+            hi_f *= 2.0
+        sol = solve_at(hi_f)
     hi_g = float(sol.U) - delta
     best, best_f = sol, hi_f
+    if lo_sol is not None and abs(lo_g) < abs(hi_g):
+        best, best_f = lo_sol, lo_f
     side = 0
     while abs(float(best.U) - delta) > depth_tol * depth:
-        if len(forces) >= MAX_EVALUATIONS:
-            break
         f = (lo_f * hi_g - hi_f * lo_g) / (hi_g - lo_g)
         if not lo_f < f < hi_f:
             f = 0.5 * (lo_f + hi_f)
-        sol = at(f)
+        sol = solve_at(f)
+        if sol is None or not sol.converged:
+            raise InputError("load.displacement", f"the solve at F = {f:g} inside the bracket did not converge"
+                                                  + ("" if sol is None else f" ({sol.status.value}: {sol.message})"))
         g = float(sol.U) - delta
         if abs(g) < abs(float(best.U) - delta):
             best, best_f = sol, f
@@ -161,3 +191,54 @@ def solve_depth(disc: Discretization, delta: float, method: str = DEFAULT_METHOD
             side = -1
     residual = abs(float(best.U) - delta) / depth
     return DepthSolution(delta, float(best_f), best, residual, False, depth, tuple(forces), tuple(depths))
+
+
+def solve_depth_path(disc: Discretization, depths: Any, method: str = "conic", *,
+                     options: SolverOptions | None = None, depth_tol: float = DEPTH_TOL, callback=None,
+                     **values: Any) -> tuple[PathResult, list[DepthSolution]]:
+    """A loading path by depth: one backward-Euler step of Prandtl-Reuss' law per
+    prescribed displacement, each step's force found as :func:`solve_depth` finds it
+    (the first guess is the last step's force). A step whose depth the body no longer
+    reaches (unloading past the residual imprint) is a lift-off: it is solved at
+    ``FLOOR_SHARE`` times the largest force so far (F = 0 to that share; the residual
+    imprint is that step's U). Returns the path (``forces`` of its steps are the found
+    forces; ``result.forces`` holds the prescribed depths) and each step's search.
+    """
+    from elastoplast.problem.definition import check_depths
+
+    expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    if disc.state is not None:
+        raise InputError("disc", "is already a step of a path: give the problem's discretisation (ep.discretize)")
+    depths = check_depths(depths, "depths")
+    check_depth_tol(depth_tol)
+    m_run = get_method(method)
+    opts = given_options(method, options, values)
+    searches: list[DepthSolution] = []
+    largest = [0.0]
+
+    def step_solve(make_step, delta: float, prev: PathStep | None, before: PathStep | None):
+        def at(f: float) -> Solution:
+            return solve(make_step(f), m_run.name, opts)
+
+        if prev is None:
+            touch = float(np.min(disc.psi))
+            first = disc.force
+            if delta <= touch:  # lift-off from the unloaded state: the step at F -> 0+
+                floor = FLOOR_SHARE * first
+                sol = at(floor)
+                search = DepthSolution(delta, floor, sol, 0.0, True, delta - touch, (floor,), (float(sol.U),))
+            else:
+                search = find_force(at, delta, 0.0, touch, first, depth_tol)
+        else:
+            floor = FLOOR_SHARE * max(largest[0], prev.force)
+            low = at(floor)
+            if not low.converged or low.U >= delta:
+                search = DepthSolution(delta, floor, low, 0.0, True, delta - float(low.U), (floor,), (float(low.U),))
+            else:
+                search = find_force(at, delta, floor, float(low.U), max(prev.force, 2.0 * floor), depth_tol, low)
+        largest[0] = max(largest[0], search.force)
+        searches.append(search)
+        return search.solution, search.force, False
+
+    result = run_path(disc, depths, m_run.name, opts, step_solve, callback)
+    return replace(result, control="displacement"), searches

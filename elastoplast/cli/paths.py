@@ -183,7 +183,7 @@ def solve_depth_command(args: argparse.Namespace, path: Path, data: dict, method
 
 
 def path_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
-    """A campaign case with a loading path: the path solved by the case's method, its
+    """A campaign case with a loading path (or a depth path): the path solved by the case's method, its
     answer as one solution (:func:`~elastoplast.io.paths.path_solution`: the last step,
     total displacement, the path's status), ``summary.json`` with the path's summary
     (``"path"``: every step) and the last step's VTU."""
@@ -194,10 +194,33 @@ def path_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
 
     disc = discretize(problem)
     opts = method_options(spec["method"], spec["options"])
-    result = solve_path(disc, problem.path, spec["method"], options=opts)
+    if problem.displacement_path is not None:
+        result, _ = solve_depth_path(disc, problem.displacement_path, spec["method"], options=opts)
+    else:
+        result = solve_path(disc, problem.path, spec["method"], options=opts)
     sol = path_solution(result)
     record = {**path_summary(disc, result), "provenance": stamp()}
     with tempfile.TemporaryDirectory(prefix="elastoplast-case-") as tmp:
         write_vtu(Path(tmp) / "solution.vtu", disc, sol)
         vtu = (Path(tmp) / "solution.vtu").read_bytes()
     return {"solution": sol, "summary": record, "vtu": vtu}
+
+
+def depth_case(problem, spec: Mapping[str, Any]) -> dict[str, Any]:
+    """A campaign case under depth control: the force found, the Hencky solve at it
+    with its ``summary.json`` (the depth keys of :func:`solve_depth_command` added) and
+    VTU. A lift-off has no solution to store: an :class:`InputError` saying F = 0."""
+    from elastoplast.cli.results import write_files
+    from elastoplast.fem.discretize import discretize
+    from elastoplast.solvers.registry import method_options
+
+    disc = discretize(problem)
+    out = solve_depth(disc, problem.displacement, spec["method"],
+                      options=method_options(spec["method"], spec["options"]))
+    if out.solution is None:
+        raise InputError("load.displacement", f"{problem.displacement:g} is at or above the unloaded gap: lift-off, "
+                                              "F = 0 and no contact (no solution to store)")
+    with tempfile.TemporaryDirectory(prefix="elastoplast-case-") as tmp:
+        data = write_files(Path(tmp), disc.with_force(out.force), out.solution, out.summary())
+        vtu = (Path(tmp) / "solution.vtu").read_bytes()
+    return {"solution": out.solution, "summary": data, "vtu": vtu}

@@ -148,3 +148,43 @@ def test_force_solvers_refuse_a_depth_problem(data):
         assert info.value.field == "load.displacement"
     with pytest.raises(ep.InputError, match="^depth_tol"):
         ep.solve_depth(disc, 0.02, depth_tol=2.0)
+
+
+def test_axisymmetric_sphere_round_trip_and_lift_off():
+    """The meridian-plane sphere (problems/sphere_axisymmetric.toml, coarser): depth control
+    gives back the force whose U it prescribes (the whole force on the indenter)."""
+    data = ep.read_toml(Path(__file__).resolve().parents[1] / "problems" / "sphere_axisymmetric.toml")
+    data["mesh"]["divisions"] = [20, 20]
+    disc = ep.discretize(ep.problem_from_dict(data))
+    force = ep.solve(disc, "conic")
+    depth = ep.problem_from_dict(depth_dict(data, displacement=force.U))
+    assert depth.axisymmetric and depth.depth_controlled
+    out = ep.solve_depth(ep.discretize(depth), force.U, "newton")
+    assert out.converged and abs(out.force - data["load"]["force"]) <= 1e-5 * data["load"]["force"]
+    assert ep.solve_depth(ep.discretize(depth), -1e-3, "newton").force == 0.0
+
+
+def test_command_line_depth_control(data, tmp_path, capsys):
+    import json
+
+    from elastoplast.cli.main import main
+
+    for name, load in (("d", "displacement = 0.03"), ("l", "displacement = -0.01"),
+                       ("p", "displacement_path = [0.02, 0.04, 0.0]")):
+        text = (Path(__file__).resolve().parents[1] / "problems" / "cylinder_2d.toml").read_text()
+        text = text.replace("force = 4315.0", load).replace("divisions = [80, 40]", "divisions = [20, 10]")
+        (tmp_path / f"{name}.toml").write_text(text)
+        assert main(["solve", str(tmp_path / f"{name}.toml"), "--out", str(tmp_path / name), "--quiet"]) == 0
+    found = json.loads((tmp_path / "d" / "summary.json").read_text())
+    assert found["control"] == "displacement" and found["displacement"] == 0.03
+    assert abs(found["U"] - 0.03) <= DEPTH_TOL * 0.03 and found["lift_off"] is False
+    # the summary's force is the one found, and the contact forces carry it
+    assert abs(found["contact_force_sum"] - found["force"]) <= 1e-6 * found["force"]
+    lifted = json.loads((tmp_path / "l" / "summary.json").read_text())
+    assert lifted["lift_off"] is True and lifted["force"] == 0.0
+    path = json.loads((tmp_path / "p" / "summary.json").read_text())
+    assert path["control"] == "displacement" and path["displacements"] == [0.02, 0.04, 0.0]
+    assert path["forces"][1] == max(path["forces"]) and path["residual_imprint"]["U"] > 0.0
+    for argv in (["bounds"], ["check", str(tmp_path / "d")]):  # check is refused before its answer is read
+        assert main([argv[0], str(tmp_path / "d.toml"), *argv[1:]]) == 2
+        assert "load.displacement" in capsys.readouterr().err

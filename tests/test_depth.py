@@ -125,8 +125,8 @@ def test_depth_path_agrees_with_force_path_and_unloads_to_zero(disc):
 
 
 @pytest.mark.parametrize("load, field", [
-    ({"force": 10.0, "displacement": 0.01}, "load.displacement"),
-    ({"path": [1.0], "displacement_path": [0.01]}, "load.displacement_path"),
+    ({"force": 10.0, "displacement": 0.01}, "load"),
+    ({"path": [1.0], "displacement_path": [0.01]}, "load"),
     ({"displacement": "deep"}, "load.displacement"),
     ({"displacement": True}, "load.displacement"),
     ({"displacement": float("nan")}, "load.displacement"),

@@ -532,7 +532,7 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     load = _only(data["load"], {"force", "path", "displacement", "displacement_path"}, "load")
     given = [k for k in ("force", "path", "displacement", "displacement_path") if k in load]
     if len(given) > 1:
-        raise InputError(f"load.{given[1]}", f"give exactly one of 'force' (Hencky's problem), 'path' (a loading "
+        raise InputError("load", f"give exactly one of 'force' (Hencky's problem), 'path' (a loading "
                                              "path of Prandtl-Reuss steps), 'displacement' (depth control) or "
                                              f"'displacement_path' (a depth path), not {' and '.join(given)}")
     if "displacement" in load:

@@ -31,6 +31,7 @@ from elastoplast.solvers.path import PathResult, PathStep, solve_path
 from elastoplast.solvers.accelerated import FastOptions
 from elastoplast.options import SolverOptions
 from elastoplast.solvers.registry import METHODS, method_options, solve
+from elastoplast.solvers.depth import DepthSolution, solve_depth, solve_depth_path
 from elastoplast.solvers.uzawa import UzawaOptions, load_sweep, solve_uzawa
 
 from elastoplast.options import MAX_ITER_CEILING, option
@@ -50,7 +51,7 @@ __all__ = [
     "METHODS", "Material", "Mesh", "NewtonOptions", "Obstacle", "Problem", "Solution", "SolverOptions", "Status",
     "UzawaOptions", "certify", "discretize", "dorfler_mark", "load_problem", "load_sweep", "make_material",
     "make_solution", "method_options", "problem_from_dict", "prolong_p1", "read_mesh", "read_toml", "refine",
-    "return_mapping", "Prestate",
+    "return_mapping", "Prestate", "DepthSolution", "solve_depth", "solve_depth_path",
     "shape_quality", "solve", "solve_conic", "solve_conic_cvxpy", "solve_conic_displacement", "solve_newton", "solve_path", "PathResult", "PathStep",
     "solve_uzawa", "structured_mesh", "summary", "von_mises",
     "LowerBound", "LowerBoundOptions", "StaticCertificate", "StaticField", "certify_static", "dual_energy",

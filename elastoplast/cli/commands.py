@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping
 from elastoplast.cli.exits import EXIT_NOT_CONVERGED, EXIT_OK, outcome
 from elastoplast.errors import FIELD_WIDTH, InputError, elide, figure
-from elastoplast.cli.loading_path import has_path, refuse_path, solve_path_command
+from elastoplast.cli.loading_path import has_depth, has_path, refuse_path, solve_depth_command, solve_path_command
 from elastoplast.cli.printing import discretize_file, problem_line
 
 
@@ -139,6 +139,8 @@ def _solve(args: argparse.Namespace) -> int:
     path, data, method, opts = _setup(args)
     if has_path(data):  # a loading path: every step, its files (cli/loading_path.py)
         return solve_path_command(args, path, data, method, opts)
+    if has_depth(data):  # depth control: the force found (cli/paths.py)
+        return solve_depth_command(args, path, data, method, opts)
     disc = _discretize(path, data, args.quiet, f"method {method}")
     sol = solve(disc, method, opts)
     data = write_results(args.out, disc, sol, field="--out")

@@ -137,13 +137,20 @@ def path_summary(disc: Discretization, result: PathResult) -> dict[str, Any]:
     the last step's U, the worst KKT residual over the steps, the iterations and time
     of all steps, the residual imprint and the unloading slope, the Oliver-Pharr figures
     (:func:`path_oliver_pharr`) and the indentation figures after the last step, and ``"path"``, one
-    entry per step in order (:func:`step_entry`)."""
+    entry per step in order (:func:`step_entry`). A depth path (``control`` =
+    ``"displacement"``) lists its prescribed ``displacements`` and, as ``forces``, the
+    forces found at its steps."""
     status, message = path_status(result)
     entries = [step_entry(disc, s) for s in result.steps]
+    depth = result.control == "displacement"  # a depth path: the loads are displacements, the forces found
+    forces = [float(s.force) for s in result.steps] if depth else list(result.forces)
+    control = {"control": result.control}
+    if depth:
+        control["displacements"] = list(result.forces)
     return {
-        **summary(disc, path_solution(result)),
+        **summary(disc, path_solution(result)), **control,
         "method": result.method, "status": status.value, "message": message,
-        "forces": list(result.forces), "force": max(result.forces), "n_steps": len(result.forces),
+        "forces": forces, "force": max(forces, default=float("nan")), "n_steps": len(result.forces),
         "n_steps_run": len(result.steps), "n_converged": sum(s.converged for s in result.steps),
         "U": float(result.steps[-1].U) if result.steps else float("nan"),
         "kkt_worst": max((e["kkt_worst"] for e in entries), default=float("nan")),

@@ -157,6 +157,10 @@ def resolve(problem: Problem, method: str, options: Mapping[str, Any],
         spec["obstacle"]["half_angle"] = float(problem.obstacle.half_angle)
     if problem.axisymmetric:  # an axisymmetric model (absent otherwise, as the path)
         spec["axisymmetric"] = True
+    if problem.displacement is not None:  # depth control (absent otherwise, as path)
+        spec["displacement"] = float(problem.displacement)
+    if problem.displacement_path is not None:
+        spec["displacement_path"] = [float(d) for d in problem.displacement_path]
     if adapt is not None:
         spec["adapt"] = {k: adapt[k] for k in sorted(adapt)}
     return ResolvedInput(spec=json.loads(json.dumps(spec)), arrays=arrays)
@@ -189,6 +193,8 @@ def rebuild_problem(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -
         force=spec["force"],
         path=None if spec.get("path") is None else tuple(spec["path"]),
         axisymmetric=bool(spec.get("axisymmetric", False)),
+        displacement=spec.get("displacement"),
+        displacement_path=None if spec.get("displacement_path") is None else tuple(spec["displacement_path"]),
     )
 
 

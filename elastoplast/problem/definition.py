@@ -26,6 +26,7 @@ from elastoplast.fem.material import Material
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
 from elastoplast.mesh.graded import graded_mesh, symmetry_planes
 from elastoplast.errors import finite_float, short_repr
+from elastoplast.problem.depth import check_depths, depth_force_guess
 from elastoplast.problem.expressions import SAFE_FUNCTIONS, compile_expression
 
 AXES = {"x": 0, "y": 1, "z": 2}
@@ -177,6 +178,10 @@ class Problem:
     force: float
     path: tuple[float, ...] | None = None
     axisymmetric: bool = False
+    #: depth control (``[load] displacement`` / ``displacement_path``): the rigid body's U
+    #: prescribed, F the unknown; ``force`` is then only the first force the search tries
+    displacement: float | None = None
+    displacement_path: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.path is not None:
@@ -186,6 +191,13 @@ class Problem:
             raise InputError("obstacle", "the obstacle was made for a"
                              + ("n axisymmetric" if self.obstacle.axisymmetric else " plane or 3D")
                              + " model and the problem is not one (make_obstacle(..., axisymmetric=...))")
+        if self.displacement_path is not None:
+            object.__setattr__(self, "displacement_path",
+                               check_depths(self.displacement_path, "load.displacement_path"))
+
+    @property
+    def depth_controlled(self) -> bool:
+        return self.displacement is not None or self.displacement_path is not None
 
     @property
     def dim(self) -> int:
@@ -199,7 +211,7 @@ class Problem:
         value = _number({"force": force}, "force", "load")
         if not value > 0:
             raise InputError("load.force", f"must be > 0, got {force!r}")
-        return replace(self, force=value, path=None)
+        return replace(self, force=value, path=None, displacement=None, displacement_path=None)
 
     def with_path(self, forces: Sequence[float]) -> "Problem":
         """The same problem under the loading path ``forces``, checked as a problem
@@ -207,7 +219,7 @@ class Problem:
         from dataclasses import replace
 
         path = check_forces(forces, "load.path")
-        return replace(self, force=max(path), path=path)
+        return replace(self, force=max(path), path=path, displacement=None, displacement_path=None)
 
 
 def check_axisymmetric(value: Any, mesh: Mesh) -> bool:
@@ -542,16 +554,31 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     if "generator" in data["mesh"]:
         check_generated_contact_zone(mesh, boundary)
     obstacle = make_obstacle(data["obstacle"], mesh.dim, axisymmetric=axisymmetric)
-    load = _only(data["load"], {"force", "path"}, "load")
-    if "force" in load and "path" in load:
-        raise InputError("load", "give exactly one of 'force' (Hencky's problem) or 'path' (a loading path of "
-                                 "Prandtl-Reuss steps), not both")
+    load = _only(data["load"], {"force", "path", "displacement", "displacement_path"}, "load")
+    given = [k for k in ("force", "path", "displacement", "displacement_path") if k in load]
+    if len(given) > 1:
+        raise InputError("load", f"give exactly one of 'force' (Hencky's problem), 'path' (a loading "
+                                             "path of Prandtl-Reuss steps), 'displacement' (depth control) or "
+                                             f"'displacement_path' (a depth path), not {' and '.join(given)}")
+    if "displacement" in load:
+        delta = load["displacement"]
+        if isinstance(delta, bool) or not isinstance(delta, (int, float)) or not np.isfinite(delta):
+            raise InputError("load.displacement", f"must be a finite number, got {short_repr(delta)}")
+        return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle,
+                       force=depth_force_guess(material, mesh, float(delta), axisymmetric),
+                       displacement=float(delta), axisymmetric=axisymmetric)
+    if "displacement_path" in load:
+        depths = check_depths(load["displacement_path"], "load.displacement_path")
+        return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle,
+                       force=depth_force_guess(material, mesh, max(depths, key=abs), axisymmetric),
+                       displacement_path=depths, axisymmetric=axisymmetric)
     if "path" in load:
         path = check_forces(load["path"], "load.path")
         return Problem(mesh=mesh, material=material, boundary=boundary, obstacle=obstacle, force=max(path),
                        path=path, axisymmetric=axisymmetric)
     if "force" not in load:
-        raise InputError("load.force", "is required (or load.path, a loading path of Prandtl-Reuss steps)")
+        raise InputError("load.force", "is required (or load.path, a loading path of Prandtl-Reuss steps, or "
+                                       "load.displacement / load.displacement_path for depth control)")
     force = _number(load, "force", "load")
     if not force > 0:
         raise InputError("load.force", f"must be > 0, got {force!r}")

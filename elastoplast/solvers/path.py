@@ -16,6 +16,7 @@ codes agree on a path only if they take the same steps.
 from __future__ import annotations
 
 import time
+from functools import partial
 from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
@@ -27,7 +28,7 @@ from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import Prestate, return_mapping
 from elastoplast.options import SolverOptions
 from elastoplast.problem.definition import check_forces
-from elastoplast.solvers.registry import Method, check_solvable, get_method, given_options
+from elastoplast.solvers.registry import Method, check_solvable, get_method, given_options, refuse_depth_control
 
 #: a step whose force is below the last one's by more than this share unloads
 UNLOADING_SHARE = 1e-12
@@ -112,9 +113,10 @@ class PathResult:
     """The steps of a path in order, and how they were obtained."""
 
     method: str
-    forces: tuple[float, ...]
+    forces: tuple[float, ...]  # the path's loads: forces, or the prescribed displacements under depth control
     steps: list[PathStep] = field(default_factory=list)
     time_s: float = 0.0
+    control: str = "force"  # "displacement" for a depth path (ep.solve_depth_path)
 
     @property
     def converged(self) -> bool:
@@ -187,6 +189,7 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
     Options are given as for :func:`~elastoplast.solvers.registry.solve`.
     """
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    refuse_depth_control(disc, "ep.solve_path")
     if disc.state is not None:
         raise InputError("disc", "is already a step of a path: give the problem's discretisation (ep.discretize)")
     forces = check_path(forces, "forces")
@@ -196,19 +199,33 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
     if getattr(opts, "load_steps", 1) != 1:
         raise InputError("load_steps", f"is {opts.load_steps}: a path takes no hidden sub-steps (they would change "
                                        "the answer of Prandtl-Reuss' law); put the intermediate forces in the path")
+
+    def step_solve(make_step, force: float, prev: PathStep | None,
+                   before: PathStep | None) -> tuple[Solution, float, bool]:
+        start = _guess(prev, before, force) if warm_start else None
+        return run_from(make_step(force), m_run, opts, start), force, start is not None and name in WARM_STARTS
+
+    return run_path(disc, forces, name, opts, step_solve, callback)
+
+
+def run_path(disc: Discretization, loads: Sequence[float], name: str, opts: SolverOptions, step_solve,
+             callback=None) -> PathResult:
+    """The steps of a path from the unloaded state: ``step_solve(make_step, load, prev,
+    before) -> (solution, force, warm_started)`` solves one step (``make_step(F)`` is
+    the step's discretisation at the force F; ``load`` a force, or a displacement under
+    depth control), then the state is advanced as :func:`solve_path` documents."""
     t0 = time.perf_counter()
+    forces = tuple(loads)
     m, n_el = disc.material, disc.n_elements
     yield_strain = m.yield_stress / m.E
     state = Prestate.of(m, np.zeros((n_el, disc.k)), np.zeros(n_el))
     u_free, kappa = np.zeros(disc.n_free), np.zeros(n_el)
     result = PathResult(name, forces)
     prev = before = None
-    for i, force in enumerate(forces):
-        step_disc = disc.step(force, state, u_free)
-        start = _guess(prev, before, force) if warm_start else None
-        sol = run_from(step_disc, m_run, opts, start)
-        du = step_disc.free_displacement(sol.u)
-        d_eps = step_disc.strain(du)
+    for i, load in enumerate(forces):
+        sol, force, warm = step_solve(partial(disc.step, state=state, u_free=u_free), load, prev, before)
+        du = disc.free_displacement(sol.u)
+        d_eps = disc.strain(du)
         beyond = small_strain_note(disc, u_free + du)  # the total strain, not the increment's
         if sol.converged and beyond:
             sol = replace(sol, status=Status.FAILED, message=f"{sol.message}; {beyond}")
@@ -223,7 +240,7 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
         step = PathStep(index=i + 1, force=force, solution=sol, u=disc.full_displacement(u_free), kappa=kappa,
                         dkappa=dkappa, plastic_work=work, yielding=yielding, unloading=unloading,
                         reverse_yield=yielding if unloading else 0,
-                        warm_started=start is not None and name in WARM_STARTS)
+                        warm_started=warm)
         result.steps.append(step)
         if callback is not None:
             callback(step)

@@ -193,12 +193,22 @@ def solve(disc: Discretization, method: str = DEFAULT_METHOD, options: SolverOpt
     answer is built by :func:`~elastoplast.certificate.solution.make_solution`, which
     judges its strains."""
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
+    refuse_depth_control(disc, "ep.solve")
     if disc.problem.path is not None:  # a step (state set) is Hencky-shaped and solved here; a whole path is not
         check_hencky(disc, "ep.solve")
     m = get_method(method)
     opts = given_options(method, options, values)
     check_solvable(disc, m.name, opts)
     return m.run(disc, opts)
+
+
+def refuse_depth_control(disc: Discretization, where: str) -> None:
+    """An :class:`InputError` naming ``load.displacement`` when ``disc`` prescribes the
+    rigid body's displacement: its force is unknown, and ``disc.force`` is only the
+    root search's first guess, so a force-controlled solve would answer another problem."""
+    if disc.problem.depth_controlled:
+        raise InputError("load.displacement", f"{where} solves under a given force; this problem prescribes the "
+                                              "displacement: use ep.solve_depth (or ep.solve_depth_path)")
 
 
 def given_options(method: str, options: SolverOptions | None, values: Mapping[str, Any]) -> SolverOptions:

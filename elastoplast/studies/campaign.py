@@ -235,8 +235,9 @@ def campaign_from_dict(data: Mapping[str, Any], base_dir: str | Path = ".", name
                 method, options = solver_settings(case_data.pop("solver", {}))
                 target = adapt_settings(case_data.pop("adapt", None), method)
                 problem = problem_from_dict(case_data, base_dir)
-                if target is not None and problem.path is not None:
-                    raise InputError("adapt", "an adaptive target is for Hencky's problem, not a loading path")
+                if target is not None and (problem.path is not None or problem.depth_controlled):
+                    raise InputError("adapt", "an adaptive target is for Hencky's problem under a force, not a "
+                                              "loading path or depth control")
                 if target is not None:
                     from elastoplast.adapt.loop import check_adaptable
 
@@ -361,7 +362,7 @@ def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[
     that workers need no shared file system), or ``{"error", "traceback",
     "worker"}`` if anything raised.
     """
-    from elastoplast.studies.loading_path import path_case
+    from elastoplast.studies.loading_path import depth_case, path_case
     from elastoplast.studies.results import write_files
     from elastoplast.fem.discretize import discretize
     from elastoplast.solvers.registry import solve
@@ -371,8 +372,10 @@ def run_case(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> dict[
         problem = rebuild_problem(spec, arrays)
         if spec.get("adapt") is not None:
             return {**adaptive_case(problem, spec), "worker": worker}
-        if problem.path is not None:  # a loading path: every step, the path's summary
+        if problem.path is not None or problem.displacement_path is not None:  # every step, the path's summary
             return {**path_case(problem, spec), "worker": worker}
+        if problem.displacement is not None:  # depth control: the force found
+            return {**depth_case(problem, spec), "worker": worker}
         disc = discretize(problem)
         sol = solve(disc, spec["method"], **spec["options"])
         with tempfile.TemporaryDirectory(prefix="elastoplast-case-") as tmp:

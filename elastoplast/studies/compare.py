@@ -50,14 +50,25 @@ def compare_problem(spec: Mapping[str, Any], arrays: Mapping[str, np.ndarray], r
     steps = None
     try:
         disc = discretize(rebuild_problem(spec, arrays))
-        if spec.get("path") is not None:  # a loading path: every step, compared step by step in compare()
-            from elastoplast.io.loading_path import path_solution
+        if spec.get("path") is not None or spec.get("displacement_path") is not None:  # every step, compared
+            from elastoplast.io.loading_path import path_solution  # step by step in compare()
+            from elastoplast.solvers.depth import solve_depth_path
             from elastoplast.solvers.path import solve_path
 
-            result = solve_path(disc, spec["path"], spec["method"], **spec["options"])
+            if spec.get("path") is not None:
+                result = solve_path(disc, spec["path"], spec["method"], **spec["options"])
+            else:
+                result, _ = solve_depth_path(disc, spec["displacement_path"], spec["method"], **spec["options"])
             sol = path_solution(result)
             steps = [{"step": st.index, "force": st.force, "U": st.U, "kkt_worst": st.solution.kkt.worst,
                       "status": st.status.value} for st in result.steps]
+        elif spec.get("displacement") is not None:  # depth control: the solve at the force found
+            from elastoplast.solvers.depth import solve_depth
+
+            found = solve_depth(disc, spec["displacement"], spec["method"], **spec["options"])
+            if found.solution is None:
+                raise InputError("load.displacement", "lift-off: F = 0, no contact and no solution to compare")
+            sol, disc = found.solution, disc.with_force(found.force)
         else:
             sol = solve(disc, spec["method"], **spec["options"])
     except Exception as exc:

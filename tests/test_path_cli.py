@@ -31,7 +31,7 @@ import elastoplast as ep
 from elastoplast.cli.main import main
 from elastoplast.errors import InputError
 from elastoplast.io.store import Store, rebuild_problem, resolve
-from elastoplast.problem.definition import check_forces
+from elastoplast.problem.load import check_forces
 from elastoplast.solvers.path import check_path
 
 from conftest import PROBLEMS

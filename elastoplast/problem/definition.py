@@ -26,7 +26,7 @@ from elastoplast.fem.material import Material
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
 from elastoplast.mesh.graded import graded_mesh, symmetry_planes
 from elastoplast.errors import finite_float, short_repr
-from elastoplast.problem.depth import check_depths, depth_force_guess
+from elastoplast.problem.load import check_depths, check_forces, depth_force_guess
 from elastoplast.problem.expressions import SAFE_FUNCTIONS, compile_expression
 
 AXES = {"x": 0, "y": 1, "z": 2}
@@ -230,30 +230,6 @@ def check_axisymmetric(value: Any, mesh: Mesh) -> bool:
         raise InputError("mesh.axisymmetric", "an axisymmetric model is a 2D mesh of the meridian plane (r, z); "
                                               f"this mesh is {mesh.dim}D")
     return value
-
-
-def check_forces(forces: Any, field: str = "load.path") -> tuple[float, ...]:
-    """The forces of a loading path as floats, or an :class:`InputError` naming
-    ``field``: a non-empty list of finite numbers > 0, in any order (loading,
-    unloading, reloading). A force of 0 is refused: the body may then lift off the
-    rigid body, and U is not determined (end an unloading at a small force)."""
-    if isinstance(forces, (str, bytes, Mapping)) or not isinstance(forces, Sequence) and not (
-            isinstance(forces, np.ndarray) and forces.ndim == 1):
-        raise InputError(field, f"must be a list of forces > 0, got {short_repr(forces)}")
-    if len(forces) == 0:
-        raise InputError(field, "is empty: give at least one force > 0")
-    out = []
-    for i, f in enumerate(forces):
-        if isinstance(f, (bool, np.bool_)) or not isinstance(f, (int, float, np.integer, np.floating)):
-            raise InputError(field, f"entry {i + 1} must be a number > 0, got {short_repr(f)}")
-        value = finite_float(f)  # None for nan, inf and integers beyond the float range
-        if value is None:
-            raise InputError(field, f"entry {i + 1} must be a finite number, got {short_repr(f)}")
-        if value <= 0.0:
-            raise InputError(field, f"entry {i + 1} must be a force > 0, got {value:g} (at F = 0 the body may lift "
-                                    "off and U is not determined; end an unloading at a small F)")
-        out.append(value)
-    return tuple(out)
 
 
 # ----------------------------------------------------------------------------

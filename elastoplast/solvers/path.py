@@ -27,7 +27,7 @@ from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import Prestate, return_mapping
 from elastoplast.options import SolverOptions
-from elastoplast.problem.definition import check_forces
+from elastoplast.problem.load import check_forces
 from elastoplast.solvers.registry import Method, check_solvable, get_method, given_options, refuse_depth_control
 
 #: a step whose force is below the last one's by more than this share unloads
@@ -143,7 +143,7 @@ class PathResult:
 
 def check_path(forces: Any, field_name: str = "load.path") -> tuple[float, ...]:
     """The forces of a path as floats, or an InputError naming ``field_name``: the
-    rules of a problem file's ``load.path`` (:func:`~elastoplast.problem.definition.check_forces`)."""
+    rules of a problem file's ``load.path`` (:func:`~elastoplast.problem.load.check_forces`)."""
     return check_forces(forces, field_name)
 
 

@@ -110,3 +110,25 @@ def test_plugins_that_exit_or_answer_in_a_wrong_shape(disc, plugin, capsys, tmp_
     assert main(["solve", str(SMALL), "--method", "ep_exits:matrix_U", "--out", out, "--quiet"]) == 3
     line = one_error_line(capsys)
     assert "ep_exits:matrix_U" in line and "shape" in line
+
+
+def test_check_on_a_path_step_file_reads_that_steps_U(tmp_path, capsys):
+    """A path's solution_001.vtu holds step 1's u; its U is step 1's entry of the summary's
+    "path", not the last step's. Step 1 of a path from rest is Hencky's problem at its
+    force (backward Euler from a zero state, docs/evolution.md), so the same problem with
+    ``load.force`` = that force certifies it; the last step's file against step 1's force
+    is still refused."""
+    from conftest import PROBLEMS
+    from test_cli import write_toml
+
+    data = ep.read_toml(PROBLEMS / "indentation_path_2d.toml")
+    data["mesh"]["divisions"] = [16, 8]
+    data["load"] = {"path": [1000.0, 3000.0]}
+    path_file = write_toml(tmp_path / "path.toml", data)
+    out = tmp_path / "out"
+    assert main(["solve", str(path_file), "--method", "newton", "--out", str(out), "--quiet"]) == 0
+    data["load"] = {"force": 1000.0}
+    first = write_toml(tmp_path / "first.toml", data)
+    capsys.readouterr()
+    assert main(["check", str(first), str(out / "solution_001.vtu")]) == 0, capsys.readouterr().err
+    assert main(["check", str(first), str(out / "solution_002.vtu")]) == 1

@@ -116,7 +116,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "by the KKT certificate")
     p.add_argument("problem", help="problem TOML file the answer is for")
     p.add_argument("answer", help="ANSWER: an .npz with u (n_nodes x d) and U, optionally sigma and xi; or a .vtu "
-                                  "with point data displacement (U: field data, or the summary.json beside it)")
+                                  "with point data displacement (U: field data, or the summary.json beside it, a path step's own entry for solution_NNN.vtu)")
     p.add_argument("--tol", type=float, help="bound on every relative KKT residual (default: the file's solver.tol, "
                                              "else 1e-6)")
     p.add_argument("--bounds", action="store_true", help="also the continuum upper bound of the answer's field and "

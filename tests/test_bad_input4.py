@@ -132,3 +132,18 @@ def test_check_on_a_path_step_file_reads_that_steps_U(tmp_path, capsys):
     capsys.readouterr()
     assert main(["check", str(first), str(out / "solution_001.vtu")]) == 0, capsys.readouterr().err
     assert main(["check", str(first), str(out / "solution_002.vtu")]) == 1
+
+
+def test_the_duality_gap_of_round_off_energies_is_not_a_figure(disc, tmp_path):
+    """Elastic answers scale exactly with the force (U and u linear in F while no node
+    leaves or joins the contact): at F = 1e-9 and 1e-12 the values of (S) and (D) are
+    below the rounding of their terms, and the gap is NaN (summary.json null, printed
+    n/a) instead of 1e-2 or 1 beside a converged status; at a force where they are not
+    round-off the gap is still a number, and small."""
+    for force in (1e-9, 1e-12):
+        sol = ep.solve(disc.with_force(force), "newton")
+        assert sol.status is ep.Status.CONVERGED and np.isnan(sol.duality_gap)
+    sol = ep.solve(disc.with_force(1e-3), "newton")
+    assert sol.duality_gap < 1e-6
+    full = ep.solve(disc, "newton")
+    assert full.duality_gap < 1e-10

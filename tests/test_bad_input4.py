@@ -7,6 +7,7 @@ the status; flags that do nothing are noted.
 
 from __future__ import annotations
 
+import json
 import pickle
 import textwrap
 from pathlib import Path
@@ -147,3 +148,31 @@ def test_the_duality_gap_of_round_off_energies_is_not_a_figure(disc, tmp_path):
     assert sol.duality_gap < 1e-6
     full = ep.solve(disc, "newton")
     assert full.duality_gap < 1e-10
+
+
+def test_a_mirrored_half_is_reoriented_and_a_fold_refused(tmp_path, capsys):
+    """The left half of a square's triangles listed clockwise (as mirroring a half model
+    and joining it produces) is the same geometry: read with a warning, it solves to
+    the U of the square listed one way (the same elements, so the same discrete
+    problem). Moving an interior node past its neighbour folds the mesh: refused."""
+    from test_inputs import grid, grid_sides, grid_triangles, solve_cli, square_problem, write_gmsh
+    from test_cli import write_toml
+
+    points, tris = grid(8, 4), grid_triangles(8, 4)
+    left = points[tris].mean(axis=1)[:, 0] < 1.0
+    mirrored = tris.copy()
+    mirrored[left, :2] = mirrored[left, 1::-1]
+    problem = write_toml(tmp_path / "p.toml", square_problem("m.msh"))
+    Us = []
+    for cells in (tris, mirrored):
+        write_gmsh(tmp_path / "m.msh", points, [("triangle", cells, 100)] + grid_sides(8, 4))
+        assert solve_cli(tmp_path, problem) == 0
+        Us.append(json.loads((tmp_path / "out" / "summary.json").read_text())["U"])
+        err = capsys.readouterr().err
+    assert f"{int(left.sum())} of {len(tris)} elements were listed with the opposite orientation" in err
+    assert Us[1] == pytest.approx(Us[0], rel=1e-12)
+    folded = points.copy()
+    folded[9 + 3] = [1.8, 0.25]  # node (3, 1) at x = 0.75 moved past node (7, 1) at x = 1.75
+    write_gmsh(tmp_path / "m.msh", folded, [("triangle", tris, 100)] + grid_sides(8, 4))
+    assert solve_cli(tmp_path, problem) == 2
+    assert "error: mesh.file: the mesh folds over itself" in capsys.readouterr().err

@@ -42,7 +42,8 @@ def plugin(tmp_path, monkeypatch):
 
 
 def one_error_line(capsys) -> str:
-    err = capsys.readouterr().err.strip().splitlines()
+    """The one ``error:`` line on stderr (warnings about the input may precede it)."""
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if not line.startswith("warning:")]
     assert len(err) == 1, err
     return err[0]
 
@@ -176,3 +177,25 @@ def test_a_mirrored_half_is_reoriented_and_a_fold_refused(tmp_path, capsys):
     write_gmsh(tmp_path / "m.msh", folded, [("triangle", tris, 100)] + grid_sides(8, 4))
     assert solve_cli(tmp_path, problem) == 2
     assert "error: mesh.file: the mesh folds over itself" in capsys.readouterr().err
+
+
+def test_descent_where_it_does_nothing(tmp_path, capsys):
+    """--descent steers the local lower bound only: with hardening = 0 (the global
+    program is the only lower bound) or --lower global it is refused naming the flag,
+    before any solve; where auto chooses the global program it is noted."""
+    from test_cli import write_toml
+
+    data = ep.read_toml(SMALL)
+    data.pop("solver", None)
+    small = write_toml(tmp_path / "h.toml", data)
+    out = str(tmp_path / "out")
+    assert main(["bounds", str(small), "--descent", "3", "--lower", "global", "--out", out, "--quiet"]) == 2
+    assert one_error_line(capsys).startswith("error: --descent: does nothing with --lower global")
+    data["material"]["hardening"] = 0.0
+    perfect = write_toml(tmp_path / "p.toml", data)
+    assert main(["bounds", str(perfect), "--descent", "3", "--out", out, "--quiet"]) == 2
+    assert one_error_line(capsys).startswith("error: --descent: does nothing with hardening = 0")
+    assert main(["adapt", str(small), "--descent", "3", "--lower", "global", "--out", out, "--quiet"]) == 2
+    assert one_error_line(capsys).startswith("error: --descent: does nothing with --lower global")
+    main(["bounds", str(small), "--descent", "3", "--out", out, "--quiet", "--no-bracket"])
+    assert "warning: --descent 3 does nothing here" in capsys.readouterr().err

@@ -116,7 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
                                      "by the KKT certificate")
     p.add_argument("problem", help="problem TOML file the answer is for")
     p.add_argument("answer", help="ANSWER: an .npz with u (n_nodes x d) and U, optionally sigma and xi; or a .vtu "
-                                  "with point data displacement (U: field data, or the summary.json beside it, a path step's own entry for solution_NNN.vtu)")
+                                  "with point data displacement (U: field data, or the summary.json beside it; for a "
+                                  "path's solution_NNN.vtu, step NNN's entry)")
     p.add_argument("--tol", type=float, help="bound on every relative KKT residual (default: the file's solver.tol, "
                                              "else 1e-6)")
     p.add_argument("--bounds", action="store_true", help="also the continuum upper bound of the answer's field and "
@@ -163,7 +164,8 @@ def _add_lower_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--descent", type=int, metavar="STEPS",
                    help="the local lower bound's steps over all patches together after its sweeps (default: "
                         f"{DESCENT_STEPS[2]}, fewer once they gain little against the gap; 0: the sweeps alone, "
-                        "faster and looser; more: tighter where plastic zones stall the sweeps)")
+                        "faster and looser; more: tighter where plastic zones stall the sweeps; refused with "
+                        "hardening = 0 or --lower global, noted where auto chooses the global program)")
 
 
 def _add_dask_arguments(p: argparse.ArgumentParser) -> None:

@@ -8,7 +8,10 @@ the status; flags that do nothing are noted.
 from __future__ import annotations
 
 import json
+import os
 import pickle
+import subprocess
+import sys
 import textwrap
 from pathlib import Path
 
@@ -199,3 +202,19 @@ def test_descent_where_it_does_nothing(tmp_path, capsys):
     assert one_error_line(capsys).startswith("error: --descent: does nothing with --lower global")
     main(["bounds", str(small), "--descent", "3", "--out", out, "--quiet", "--no-bracket"])
     assert "warning: --descent 3 does nothing here" in capsys.readouterr().err
+
+
+def test_a_file_too_large_for_the_limit_is_exit_2_naming_out(tmp_path):
+    """A file-size limit (RLIMIT_FSIZE, as a full or capped disk acts: EFBIG) met while
+    solve writes its files is the place written to, as for export: exit 2, one line
+    naming --out, and the folder not left half-written."""
+    out = tmp_path / "out"
+    code = ("import resource, sys; from elastoplast.cli.main import main; "
+            "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096)); "
+            f"sys.exit(main(['solve', {str(SMALL)!r}, '--method', 'newton', '--out', {str(out)!r}, '--quiet']))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(SMALL.parent)])})
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: --out: cannot write"), lines
+    assert not out.exists()

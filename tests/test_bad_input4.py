@@ -218,3 +218,22 @@ def test_a_file_too_large_for_the_limit_is_exit_2_naming_out(tmp_path):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: --out: cannot write"), lines
     assert not out.exists()
+
+
+def test_numpy_warnings_reach_the_user_once_per_kind(plugin, tmp_path, capsys):
+    """An answer of 1e200 overflows in the certificate's arithmetic: each kind of numpy
+    floating-point warning is one marked line, never repeated, and the status (the answer
+    holds non-finite values) decides the exit code."""
+    plugin("ep_huge", """
+        import elastoplast as ep
+
+        def run(disc, options):
+            sol = ep.solve(disc, "newton")
+            return 1e200 * sol.u, 1e200 * sol.U
+    """)
+    assert main(["solve", str(SMALL), "--method", "ep_huge:run", "--out", str(tmp_path / "out"), "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    said = [line for line in err if "encountered in" in line]
+    assert said and len(said) == len(set(said)), err
+    assert all(line.startswith("warning: floating-point arithmetic: ") for line in said), said
+    assert err[-1].startswith("not converged: ")

@@ -240,11 +240,24 @@ def _sigterm_unwinds():
         signal.signal(signal.SIGTERM, previous)
 
 
-def _show_warning(message, *args, **kwargs) -> None:
-    """A warning on a line of its own, above any progress bar (tqdm clears and redraws it)."""
+def _show_warning(message, category=None, *args, **kwargs) -> None:
+    """A warning on a line of its own, above any progress bar (tqdm clears and redraws it).
+    numpy's floating-point warnings (overflow, invalid value, divide by zero; a RuntimeWarning
+    "... encountered in ...") are said once per kind and run, marked as arithmetic: they arrive
+    in bursts, one per array operation, and the answer's own checks judge what they mean."""
     from tqdm import tqdm
 
-    tqdm.write(f"warning: {message}", file=sys.stderr)
+    text = str(message)
+    if category is not None and issubclass(category, RuntimeWarning) and " encountered in " in text:
+        if text in _SAID:
+            return
+        _SAID.add(text)
+        text = f"floating-point arithmetic: {text} (said once; the certificate and status judge the answer)"
+    tqdm.write(f"warning: {text}", file=sys.stderr)
+
+
+#: numpy's warnings said in this run (one line per kind)
+_SAID: set[str] = set()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -252,6 +265,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with warnings.catch_warnings(), _sigterm_unwinds(), _guarded_stdout() as out:
         warnings.simplefilter("always")
         warnings.showwarning = _show_warning
+        _SAID.clear()
         try:
             try:
                 args = build_parser().parse_args(argv)

@@ -12,6 +12,7 @@ import os
 import pickle
 import subprocess
 import sys
+import time
 import textwrap
 from pathlib import Path
 
@@ -20,6 +21,7 @@ import pytest
 
 import elastoplast as ep
 from elastoplast.cli.main import main
+from elastoplast.io.paths import path_status
 from elastoplast.solvers.plugins import PluginError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -237,3 +239,20 @@ def test_numpy_warnings_reach_the_user_once_per_kind(plugin, tmp_path, capsys):
     assert said and len(said) == len(set(said)), err
     assert all(line.startswith("warning: floating-point arithmetic: ") for line in said), said
     assert err[-1].startswith("not converged: ")
+
+
+def test_time_limit_bounds_a_whole_path(disc, tmp_path, capsys):
+    """--time-limit on a path is the whole run's: a path of many steps stops once it is
+    spent (status time_limit, exit 1, the steps run kept), not after each step's own
+    limit. The steps of small_2d take milliseconds each: 400 of them outlast 0.2 s."""
+    forces = [disc.force * (1 + (i % 2)) / 2 for i in range(400)]
+    start = time.perf_counter()
+    result = ep.solve_path(disc, forces, "newton", time_limit=0.2)
+    took = time.perf_counter() - start
+    assert not result.converged and 0 < len(result.steps) < len(forces)
+    assert all(s.converged for s in result.steps[:-1])
+    last = result.steps[-1].solution.status
+    # spent between steps (the path says so) or inside the last one (its solver says so)
+    assert ("time limit of 0.2 s" in result.stopped) if last is ep.Status.CONVERGED else last is ep.Status.TIME_LIMIT
+    assert path_status(result)[0] is ep.Status.TIME_LIMIT
+    assert took < 0.2 + 5 * max(s.solution.time_s for s in result.steps) + 1.0

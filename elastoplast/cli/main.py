@@ -54,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
     p.add_argument("--method", help=f"solver, one of {sorted(METHODS)} (default: the file's [solver] method, else conic)")
     p.add_argument("--out", default="results", help="output folder, new or holding an earlier output (default: results)")
-    _add_solver_arguments(p)
+    _add_solver_arguments(p, time_help="wall-clock limit in seconds of the whole run: the solve, or every step of a "
+                                       "loading path together (the path stops with status time_limit once spent)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
     p = sub.add_parser("bounds", help="certified bounds on the continuous problem: energy, stress error and U")
@@ -103,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
                                  "(*.toml, no index.sqlite): a suite of instances")
     p.add_argument("--method", required=True, action="append",
                    help=f"method to compare (one of {sorted(METHODS)}); on a suite folder, repeat it for each method")
-    _add_solver_arguments(p)
+    _add_solver_arguments(p, time_help="wall-clock limit of each case's solve in seconds (not of the comparison)")
     p.add_argument("--reference-method", help="only the references solved by this method")
     p.add_argument("--out", help="report directory (default: STORE/compare-METHOD; required for a suite folder)")
     _add_dask_arguments(p)

@@ -115,6 +115,8 @@ class PathResult:
     forces: tuple[float, ...]
     steps: list[PathStep] = field(default_factory=list)
     time_s: float = 0.0
+    #: why the path stopped before its end with every step run converged ("" if it did not)
+    stopped: str = ""
 
     @property
     def converged(self) -> bool:
@@ -183,7 +185,9 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
     one), so ``result.steps`` may be shorter than ``forces``. ``warm_start``: the
     iterative methods (newton, uzawa, uzawa-fast) start each step from the last
     increment scaled to the next force step; the conic methods (interior points)
-    always start cold. ``callback(step)`` is called after each step.
+    always start cold. ``callback(step)`` is called after each step. ``time_limit``
+    bounds the whole path: each step is given what is left, and when nothing is the
+    path stops (``result.stopped`` says why; its status is ``time_limit``).
     Options are given as for :func:`~elastoplast.solvers.registry.solve`.
     """
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
@@ -203,10 +207,20 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
     u_free, kappa = np.zeros(disc.n_free), np.zeros(n_el)
     result = PathResult(name, forces)
     prev = before = None
+    limit, stopped = opts.time_limit, ""
     for i, force in enumerate(forces):
+        if limit is not None:  # the limit bounds the whole path: each step gets what is left
+            left = limit - (time.perf_counter() - t0)
+            if left <= 0:
+                stopped = (f"the time limit of {limit:g} s ran out after {i} of {len(forces)} steps "
+                           "(it bounds the whole path)")
+                break
+            step_opts = replace(opts, time_limit=left)
+        else:
+            step_opts = opts
         step_disc = disc.step(force, state, u_free)
         start = _guess(prev, before, force) if warm_start else None
-        sol = run_from(step_disc, m_run, opts, start)
+        sol = run_from(step_disc, m_run, step_opts, start)
         du = step_disc.free_displacement(sol.u)
         d_eps = step_disc.strain(du)
         beyond = small_strain_note(disc, u_free + du)  # the total strain, not the increment's
@@ -231,4 +245,4 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
             break
         state = Prestate.of(m, sol.sigma, sol.xi, max(state.displacement, np.abs(u_free).max(initial=0.0), abs(sol.U)))
         before, prev = prev, step
-    return replace(result, time_s=time.perf_counter() - t0)
+    return replace(result, time_s=time.perf_counter() - t0, stopped=stopped)

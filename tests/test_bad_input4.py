@@ -256,3 +256,23 @@ def test_time_limit_bounds_a_whole_path(disc, tmp_path, capsys):
     assert ("time limit of 0.2 s" in result.stopped) if last is ep.Status.CONVERGED else last is ep.Status.TIME_LIMIT
     assert path_status(result)[0] is ep.Status.TIME_LIMIT
     assert took < 0.2 + 5 * max(s.solution.time_s for s in result.steps) + 1.0
+
+
+def test_bounds_without_a_method_picks_one_that_can_run(tmp_path, capsys, monkeypatch):
+    """bounds with no method named on a mesh beyond the conic reference's size solves
+    by newton and says so (the 227,000-tetrahedra case, with the size limit lowered
+    below small_2d's 144 triangles); a method the user names is still refused there."""
+    from elastoplast.solvers.registry import CONIC_MAX_ELEMENTS
+    from test_cli import write_toml
+
+    monkeypatch.setitem(CONIC_MAX_ELEMENTS, 2, 100)
+    data = ep.read_toml(SMALL)
+    data.pop("solver", None)
+    small = write_toml(tmp_path / "h.toml", data)
+    out = tmp_path / "out"
+    assert main(["bounds", str(small), "--no-bracket", "--out", str(out), "--quiet"]) == 0
+    assert "note: 144 elements is beyond the conic reference's 100 in 2D: the P1 solution by newton" in \
+        capsys.readouterr().err
+    assert json.loads((out / "summary.json").read_text())["method"] == "newton"
+    assert main(["bounds", str(small), "--method", "conic", "--no-bracket", "--out", str(out), "--quiet"]) == 2
+    assert "beyond what the conic reference can finish" in one_error_line(capsys)

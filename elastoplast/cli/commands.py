@@ -165,6 +165,7 @@ def _bounds(args: argparse.Namespace) -> int:
         lower_options = LowerBoundOptions.build({"kind": args.lower or "auto", "descent": args.descent})
         kind = check_lower_bound_fits(disc, lower_options, factor=1.0 if args.no_bracket else SEQUENCE_MEMORY_FACTOR)
     descent_unused(args.descent, disc.material.hardening, args.lower, kind)
+    method, opts = _method_that_fits(args, data, disc, method, opts)
     check_solvable(disc, method, opts)
     sol = solve(disc, method, opts)
     if sol.status is Status.INFEASIBLE:
@@ -186,6 +187,23 @@ def _bounds(args: argparse.Namespace) -> int:
           f"stress error <= {figure(b.stress_error_bound, '.4g')} ({figure(100 * b.stress_error_bound_rel, '.2f')}%); "
           f"{'certified' if report.certified else 'NOT certified'} -> {Path(args.out) / 'summary.json'}")
     return outcome(report.certified, f"not certified: upper: {report.upper.message}; lower: {report.lower.message}")
+
+
+def _method_that_fits(args: argparse.Namespace, data: dict, disc, method: str, opts):
+    """``bounds`` with no method named (no ``--method``, none in ``[solver]``) on a mesh
+    beyond the conic reference's size: Newton instead, as adapt's default, with a note."""
+    from elastoplast.solvers.registry import CONIC_MAX_ELEMENTS, method_options
+
+    table = data.get("solver", {})
+    named = args.method is not None or (isinstance(table, Mapping) and "method" in table)
+    limit = CONIC_MAX_ELEMENTS[disc.dim]
+    if named or not method.startswith("conic") or disc.n_elements <= limit:
+        return method, opts
+    print(f"note: {disc.n_elements:,} elements is beyond the conic reference's {limit:,} in {disc.dim}D: the P1 "
+          "solution by newton (--method chooses another)", file=sys.stderr)
+    _, options = _file_solver(table, "newton")
+    return "newton", method_options("newton", {**options, **command_line_options(args), "progress": not args.quiet},
+                                    prefix="solver.")
 
 
 def descent_unused(descent: int | None, hardening: float, lower: str | None, kind: str | None) -> None:

@@ -60,7 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bounds", help="certified bounds on the continuous problem: energy, stress error and U")
     p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
-    p.add_argument("--method", help="solver of the P1 solution (default: the file's [solver] method, else conic)")
+    p.add_argument("--method", help="solver of the P1 solution (default: the file's [solver] method, else conic, or "
+                                    "newton on a mesh beyond the conic reference's size, with a note)")
     p.add_argument("--out", default="bounds", help="output folder (default: bounds)")
     _add_solver_arguments(p, time_help="wall-clock limit of the P1 solve in seconds (the bound programs are not "
                                        "limited; 'adapt --time-limit' budgets a whole run)")

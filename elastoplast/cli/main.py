@@ -5,8 +5,9 @@ behind ``--option``) and ``elastoplast --version``.
 
 Exit codes: 0 solved and certified, 1 the solver did not converge (the status
 says why; files are still written), 2 bad input (one line naming the field),
-3 an internal error (a bug: one line; ``ELASTOPLAST_DEBUG=1`` shows the
-traceback), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM: ``timeout``, a batch
+3 an internal error (a bug, or a plug-in method that raised or called
+``sys.exit()`` in its run: one line; ``ELASTOPLAST_DEBUG=1`` shows the traceback;
+an output folder on a full disk, over quota, read-only or past a file-size limit is 2), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM: ``timeout``, a batch
 scheduler; it takes effect when Python regains control, after a native solver call in
 progress); an interrupted or terminated run leaves no staged output behind; 141 when
 stdout was closed by its reader (the run goes on and its output files are written).

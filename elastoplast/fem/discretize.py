@@ -36,7 +36,10 @@ from elastoplast.mesh.base import read_only
 
 
 def sealed_matrix(m: sp.csr_matrix) -> sp.csr_matrix:
-    """A CSR matrix sharing ``m``'s arrays through read-only views (``m`` itself untouched)."""
+    """A CSR matrix sharing ``m``'s arrays through read-only views (``m`` itself untouched;
+    anything that is not a sparse matrix, as a test's stand-in, as it is)."""
+    if not sp.issparse(m):
+        return m
     m = m.tocsr()
     out = sp.csr_matrix(m.shape, dtype=m.dtype)
     out.data, out.indices, out.indptr = read_only(m.data), read_only(m.indices), read_only(m.indptr)

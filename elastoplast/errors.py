@@ -57,8 +57,11 @@ def finite_float(val: Any) -> float | None:
 
 
 def short_repr(val: Any, width: int = 80) -> str:
-    """``repr`` of a user value, cut to one readable line of about ``width`` characters."""
-    text = repr(val)
+    """``repr`` of a user value, cut to one readable line of about ``width`` characters;
+    an array is described by its shape and type (numpy's printout spans lines)."""
+    if isinstance(val, np.ndarray):
+        return f"an array of shape {val.shape} and dtype {val.dtype}"
+    text = " ".join(repr(val).split())
     return text if len(text) <= width else text[: max(width - 20, 10)] + f"... ({len(text)} characters)"
 
 

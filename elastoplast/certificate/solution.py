@@ -40,7 +40,7 @@ class Solution:
     ``contact_force``/``contact_pressure``/``active`` per contact node (in the
     order of ``Discretization.contact_nodes``), ``plastic`` per element.
     ``duality_gap`` is ``|value(S) + value(D)| / max(|value(S)|, |value(D)|)``
-    evaluated at this candidate. ``timings`` in seconds; ``history`` one dict
+    evaluated at this candidate, NaN where the values are round-off (:func:`duality_gap`). ``timings`` in seconds; ``history`` one dict
     per iteration for iterative methods.
     """
 
@@ -70,6 +70,29 @@ class Solution:
     @property
     def converged(self) -> bool:
         return self.status is Status.CONVERGED
+
+
+#: the duality gap is reported only where the values exceed their round-off by this factor
+GAP_ROUNDOFF_MARGIN = 1e3
+#: the observed rounding of the values, in units of eps times their terms (about 10; see duality_gap)
+GAP_ROUNDOFF_FACTOR = 16.0
+
+
+def duality_gap(disc: Discretization, vS: float, vD: float, U: float, lam: np.ndarray) -> float:
+    """``|vS + vD| / max(|vS|, |vD|)``, or NaN (printed ``n/a``) when the values are
+    within ``GAP_ROUNDOFF_MARGIN`` of their own rounding. Both are differences of terms
+    of size ``|F U|``, ``|psi| . |lam|`` and the energy; the contact forces carry a
+    rounding of about eps times ``F`` at every node, which ``psi`` multiplies, so the
+    values are known to ``R = GAP_ROUNDOFF_FACTOR * eps * (|F| sum|psi| + |F U| + |vS|)``.
+    The energy scales with ``F**2`` and ``R`` with ``F``: at a force of 1e-9 the values
+    are round-off and their gap (1e-2 to 1, for a U that is exactly linear) says nothing."""
+    scale = max(abs(vS), abs(vD))
+    rounding = GAP_ROUNDOFF_FACTOR * np.finfo(float).eps * (
+        abs(disc.force) * float(np.abs(disc.psi).sum()) + abs(disc.force * U) + abs(vS)
+        + float(np.abs(disc.psi) @ np.abs(lam)))
+    if not scale > GAP_ROUNDOFF_MARGIN * rounding:
+        return float("nan")
+    return abs(vS + vD) / scale
 
 
 def value_stress_form(disc: Discretization, sigma: np.ndarray, xi: np.ndarray, lam: np.ndarray) -> float:
@@ -164,7 +187,7 @@ def make_solution(
     kkt = certify(disc, sigma, xi, u, U, contact_force=lam)
     vS = value_stress_form(disc, sigma, xi, lam)
     vD = value_displacement_form(disc, u_free, U)
-    gap = abs(vS + vD) / max(abs(vS), abs(vD), np.finfo(float).tiny)
+    gap = duality_gap(disc, vS, vD, U, lam)
     with np.errstate(divide="ignore", invalid="ignore"):
         pressure = np.where(disc.contact_area > 0, lam / disc.contact_area, np.nan)
     active = lam > ACTIVE_FORCE_SHARE * max(lam.max(initial=0.0), 0.0)

@@ -167,6 +167,8 @@ def _bounds(args: argparse.Namespace) -> int:
     with _lower_flag():
         lower_options = LowerBoundOptions.build({"kind": args.lower or "auto", "descent": args.descent})
         kind = check_lower_bound_fits(disc, lower_options, factor=1.0 if args.no_bracket else SEQUENCE_MEMORY_FACTOR)
+    descent_unused(args.descent, disc.material.hardening, args.lower, kind)
+    method, opts = _method_that_fits(args, data, disc, method, opts)
     check_solvable(disc, method, opts)
     sol = solve(disc, method, opts)
     if sol.status is Status.INFEASIBLE:
@@ -188,6 +190,40 @@ def _bounds(args: argparse.Namespace) -> int:
           f"stress error <= {figure(b.stress_error_bound, '.4g')} ({figure(100 * b.stress_error_bound_rel, '.2f')}%); "
           f"{'certified' if report.certified else 'NOT certified'} -> {Path(args.out) / 'summary.json'}")
     return outcome(report.certified, f"not certified: upper: {report.upper.message}; lower: {report.lower.message}")
+
+
+def _method_that_fits(args: argparse.Namespace, data: dict, disc, method: str, opts):
+    """``bounds`` with no method named (no ``--method``, none in ``[solver]``) on a mesh
+    beyond the conic reference's size: Newton instead, as adapt's default, with a note."""
+    from elastoplast.solvers.registry import CONIC_MAX_ELEMENTS, method_options
+
+    table = data.get("solver", {})
+    named = args.method is not None or (isinstance(table, Mapping) and "method" in table)
+    limit = CONIC_MAX_ELEMENTS[disc.dim]
+    if named or not method.startswith("conic") or disc.n_elements <= limit:
+        return method, opts
+    print(f"note: {disc.n_elements:,} elements is beyond the conic reference's {limit:,} in {disc.dim}D: the P1 "
+          "solution by newton (--method chooses another)", file=sys.stderr)
+    _, options = _file_solver(table, "newton")
+    return "newton", method_options("newton", {**options, **command_line_options(args), "progress": not args.quiet},
+                                    prefix="solver.")
+
+
+def descent_unused(descent: int | None, hardening: float, lower: str | None, kind: str | None) -> None:
+    """``--descent`` belongs to the local lower bound: refused where it can do nothing
+    (H = 0, or ``--lower global`` asked for), noted where ``auto`` chose the global
+    program (``kind``; None: not known yet, as in adapt, where the size decides per mesh)."""
+    if descent is None:
+        return
+    if hardening == 0:
+        raise InputError("--descent", "does nothing with hardening = 0: the lower bound is then the global program, "
+                                      "which has no descent (leave --descent out)")
+    if lower == "global":
+        raise InputError("--descent", "does nothing with --lower global: the descent is the local lower bound's "
+                                      "(use --lower local or auto, or leave --descent out)")
+    if kind == "global":
+        warnings.warn(f"--descent {descent} does nothing here: on this mesh the lower bound is the global program "
+                      "(--lower auto), which has no descent")
 
 
 @contextlib.contextmanager
@@ -291,6 +327,7 @@ def _adapt(args: argparse.Namespace) -> int:
         raise InputError(flags.get(exc.field, f"--{exc.field.replace('_', '-')}"), exc.message) from None
     disc = _discretize(path, data, args.quiet, f"adaptive refinement to rtol {options.rtol:g}")
     check_adaptable(disc.problem)
+    descent_unused(args.descent, disc.material.hardening, args.lower, None)
     return EXIT_OK if run_adapt_command(disc.problem, options, args.out) else EXIT_NOT_CONVERGED
 
 

@@ -5,8 +5,9 @@ behind ``--option``) and ``elastoplast --version``.
 
 Exit codes: 0 solved and certified, 1 the solver did not converge (the status
 says why; files are still written), 2 bad input (one line naming the field),
-3 an internal error (a bug: one line; ``ELASTOPLAST_DEBUG=1`` shows the
-traceback), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM: ``timeout``, a batch
+3 an internal error (a bug, or a plug-in method that raised or called
+``sys.exit()`` in its run: one line; ``ELASTOPLAST_DEBUG=1`` shows the traceback;
+an output folder on a full disk, over quota, read-only or past a file-size limit is 2), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM: ``timeout``, a batch
 scheduler; it takes effect when Python regains control, after a native solver call in
 progress); an interrupted or terminated run leaves no staged output behind; 141 when
 stdout was closed by its reader (the run goes on and its output files are written).
@@ -54,12 +55,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
     p.add_argument("--method", help=f"solver, one of {sorted(METHODS)} (default: the file's [solver] method, else conic)")
     p.add_argument("--out", default="results", help="output folder, new or holding an earlier output (default: results)")
-    _add_solver_arguments(p)
+    _add_solver_arguments(p, time_help="wall-clock limit in seconds of the whole run: the solve, or every step of a "
+                                       "loading path together (the path stops with status time_limit once spent)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
     p = sub.add_parser("bounds", help="certified bounds on the continuous problem: energy, stress error and U")
     p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
-    p.add_argument("--method", help="solver of the P1 solution (default: the file's [solver] method, else conic)")
+    p.add_argument("--method", help="solver of the P1 solution (default: the file's [solver] method, else conic, or "
+                                    "newton on a mesh beyond the conic reference's size, with a note)")
     p.add_argument("--out", default="bounds", help="output folder (default: bounds)")
     _add_solver_arguments(p, time_help="wall-clock limit of the P1 solve in seconds (the bound programs are not "
                                        "limited; 'adapt --time-limit' budgets a whole run)")
@@ -103,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
                                  "(*.toml, no index.sqlite): a suite of instances")
     p.add_argument("--method", required=True, action="append",
                    help=f"method to compare (one of {sorted(METHODS)}); on a suite folder, repeat it for each method")
-    _add_solver_arguments(p)
+    _add_solver_arguments(p, time_help="wall-clock limit of each case's solve in seconds (not of the comparison)")
     p.add_argument("--reference-method", help="only the references solved by this method")
     p.add_argument("--out", help="report directory (default: STORE/compare-METHOD; required for a suite folder)")
     _add_dask_arguments(p)
@@ -116,7 +119,8 @@ def build_parser() -> argparse.ArgumentParser:
                                      "by the KKT certificate")
     p.add_argument("problem", help="problem TOML file the answer is for")
     p.add_argument("answer", help="ANSWER: an .npz with u (n_nodes x d) and U, optionally sigma and xi; or a .vtu "
-                                  "with point data displacement (U: field data, or the summary.json beside it)")
+                                  "with point data displacement (U: field data, or the summary.json beside it; for a "
+                                  "path's solution_NNN.vtu, step NNN's entry)")
     p.add_argument("--tol", type=float, help="bound on every relative KKT residual (default: the file's solver.tol, "
                                              "else 1e-6)")
     p.add_argument("--bounds", action="store_true", help="also the continuum upper bound of the answer's field and "
@@ -163,7 +167,8 @@ def _add_lower_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--descent", type=int, metavar="STEPS",
                    help="the local lower bound's steps over all patches together after its sweeps (default: "
                         f"{DESCENT_STEPS[2]}, fewer once they gain little against the gap; 0: the sweeps alone, "
-                        "faster and looser; more: tighter where plastic zones stall the sweeps)")
+                        "faster and looser; more: tighter where plastic zones stall the sweeps; refused with "
+                        "hardening = 0 or --lower global, noted where auto chooses the global program)")
 
 
 def _add_dask_arguments(p: argparse.ArgumentParser) -> None:
@@ -238,11 +243,24 @@ def _sigterm_unwinds():
         signal.signal(signal.SIGTERM, previous)
 
 
-def _show_warning(message, *args, **kwargs) -> None:
-    """A warning on a line of its own, above any progress bar (tqdm clears and redraws it)."""
+def _show_warning(message, category=None, *args, **kwargs) -> None:
+    """A warning on a line of its own, above any progress bar (tqdm clears and redraws it).
+    numpy's floating-point warnings (overflow, invalid value, divide by zero; a RuntimeWarning
+    "... encountered in ...") are said once per kind and run, marked as arithmetic: they arrive
+    in bursts, one per array operation, and the answer's own checks judge what they mean."""
     from tqdm import tqdm
 
-    tqdm.write(f"warning: {message}", file=sys.stderr)
+    text = str(message)
+    if category is not None and issubclass(category, RuntimeWarning) and " encountered in " in text:
+        if text in _SAID:
+            return
+        _SAID.add(text)
+        text = f"floating-point arithmetic: {text} (said once; the certificate and status judge the answer)"
+    tqdm.write(f"warning: {text}", file=sys.stderr)
+
+
+#: numpy's warnings said in this run (one line per kind)
+_SAID: set[str] = set()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -250,6 +268,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with warnings.catch_warnings(), _sigterm_unwinds(), _guarded_stdout() as out:
         warnings.simplefilter("always")
         warnings.showwarning = _show_warning
+        _SAID.clear()
         try:
             try:
                 args = build_parser().parse_args(argv)

@@ -35,6 +35,20 @@ from elastoplast.problem.definition import Boundary, Problem
 from elastoplast.mesh.base import read_only
 
 
+def sealed_matrix(m: sp.csr_matrix) -> sp.csr_matrix:
+    """A CSR matrix sharing ``m``'s arrays through read-only views (``m`` itself untouched;
+    anything that is not a sparse matrix, as a test's stand-in, as it is)."""
+    if not sp.issparse(m):
+        return m
+    m = m.tocsr()
+    if not (m.data.flags.writeable or m.indices.flags.writeable or m.indptr.flags.writeable):
+        return m  # sealed already
+    out = sp.csr_matrix(m.shape, dtype=m.dtype)
+    out.data, out.indices, out.indptr = read_only(m.data), read_only(m.indices), read_only(m.indptr)
+    out.has_canonical_format = m.has_canonical_format
+    return out
+
+
 @dataclass(frozen=True)
 class Discretization:
     """The data of the discrete problem (2.1) for one :class:`Problem`.
@@ -75,9 +89,27 @@ class Discretization:
     shared: "SharedOperators | None" = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        self.seal()
         if self.shared is None or not self.shared.serves(self):
             object.__setattr__(self, "shared", SharedOperators(self.mesh, self.problem.boundary, self.grads,
                                                                self.volumes, self.free, self.hoop))
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickled (or copied): the arrays read-only again (pickle drops the flag)."""
+        self.__dict__.update(state)
+        self.seal()
+
+    def seal(self) -> None:
+        """Make every array of the discrete problem a read-only view, the sparse
+        operators' ``data``, ``indices`` and ``indptr`` included: a method that
+        edits them in place fails at once instead of solving (and being judged
+        against) another problem."""
+        for name in ("volumes", "grads", "free", "fixed", "contact_nodes", "psi", "contact_area"):
+            object.__setattr__(self, name, read_only(getattr(self, name)))
+        for name in ("B", "N"):
+            object.__setattr__(self, name, sealed_matrix(getattr(self, name)))
+        if self.hoop is not None:
+            object.__setattr__(self, "hoop", read_only(self.hoop))
 
     @property
     def mesh(self) -> Mesh:
@@ -420,7 +452,6 @@ def discretize(problem: Problem) -> Discretization:
 
     psi = problem.obstacle.psi(mesh.points[contact_nodes, :-1], field="obstacle")
     area = _flat_bottom_area(mesh, tol, axisymmetric)[contact_nodes]
-    B.data = read_only(B.data)  # operators of one mesh: an edit in place would silently change the problem
     disc = Discretization(
         problem=problem,
         volumes=read_only(volumes),

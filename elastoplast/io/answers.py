@@ -32,6 +32,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 import sys
 import warnings
 import zipfile
@@ -239,10 +240,25 @@ def vtu_U(path: Path, m, disc: Discretization) -> np.ndarray:
     if n_nodes != disc.mesh.n_nodes:
         raise InputError(f"{FIELD}.U", f"{shown(summary)} belongs to a mesh of {data['n_nodes']} nodes, not this "
                                        f"problem's {disc.mesh.n_nodes}")
-    value = data["U"]
+    value = step_U(path, data, summary)
     if isinstance(value, bool) or not isinstance(value, (int, float)):  # strict JSON: a NaN was written as null
         raise InputError(f"{FIELD}.U", f"expected a number in {shown(summary)}, got {value!r}")
     return np.asarray(float(value))
+
+
+def step_U(path: Path, data: Mapping, summary: Path) -> Any:
+    """U for ``path`` from its ``summary.json``: a loading path's step file
+    (``solution_NNN.vtu``) takes that step's entry of ``"path"``, not the last step's U."""
+    match = re.fullmatch(r"solution_(\d+)\.vtu", path.name)
+    steps = data.get("path")
+    if match is None or not isinstance(steps, list):
+        return data["U"]
+    index = int(match.group(1))
+    entry = next((e for e in steps if isinstance(e, Mapping) and e.get("step") == index), None)
+    if entry is None or "U" not in entry:
+        raise InputError(f"{FIELD}.U", f"{shown(summary)} has no step {index} with a U in its \"path\" "
+                                       f"(for {shown(path)})")
+    return entry["U"]
 
 
 def read_vtu(path: Path, disc: Discretization) -> dict[str, np.ndarray]:

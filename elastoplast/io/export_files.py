@@ -35,7 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from elastoplast.errors import InputError
-from elastoplast.io.output import current_umask, path_errors
+from elastoplast.io.output import WRITE_TARGET_ERRORS, current_umask, path_errors
 from elastoplast.limits import as_path, check_input_file, read_bytes, shown
 
 SIDECAR_SUFFIX = ".json"
@@ -46,9 +46,8 @@ MAX_SIDECAR_BYTES = 2**30
 #: the largest npz read back
 MAX_NPZ_BYTES = 16 * 2**30
 #: errors writing the pair that only the place written to can cause
-WRITE_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EISDIR,
-                          errno.ENOTDIR, errno.ENAMETOOLONG, errno.ELOOP, errno.ENOENT, errno.EFBIG, errno.EXDEV,
-                          errno.ETXTBSY})
+WRITE_ERRORS = WRITE_TARGET_ERRORS | {errno.EACCES, errno.EPERM, errno.EISDIR, errno.ENOTDIR, errno.ENAMETOOLONG,
+                                      errno.ELOOP, errno.ENOENT, errno.EXDEV, errno.ETXTBSY}
 _TMP_PREFIX = ".elastoplast-export-"
 
 

@@ -40,8 +40,8 @@ def path_status(result: PathResult) -> tuple[Status, str]:
     if result.converged:
         return Status.CONVERGED, f"{n} of {n} steps converged"
     bad = next((s for s in result.steps if not s.converged), None)
-    if bad is None:  # pragma: no cover - solve_path stops only at a step that did not converge
-        return Status.FAILED, f"{len(result.steps)} of {n} steps run"
+    if bad is None:  # every step run converged: the time limit stopped the path
+        return Status.TIME_LIMIT, result.stopped or f"{len(result.steps)} of {n} steps run"
     return bad.status, (f"step {bad.index} of {n} (F = {bad.force:g}) ended {bad.status.value}: "
                         f"{bad.solution.message}; the path stops there")
 

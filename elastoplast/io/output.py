@@ -98,8 +98,9 @@ OUTPUT_MARKER = ".elastoplast-output.json"
 LEGACY_OUTPUTS = frozenset({"summary.json", "solution.vtu", "convergence.png", "report.md", "compare.json", "compare.png"})
 
 
-#: errors writing the output that only the place written to can cause (disk full, over quota, read-only)
-WRITE_TARGET_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS})
+#: errors writing the output that only the place written to can cause (disk full, over quota, read-only,
+#: a file larger than the file system or the process's file-size limit allows)
+WRITE_TARGET_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
 
 
 @contextlib.contextmanager

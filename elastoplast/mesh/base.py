@@ -12,7 +12,7 @@ import io
 import itertools
 import numbers
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Mapping, Sequence
@@ -22,13 +22,16 @@ import numpy as np
 from elastoplast.limits import (as_path, check_input_file, check_memory, check_mesh_size, element_name, format_bytes,
     mesh_read_bytes, structured_counts)
 from elastoplast.mesh.topology import boundary_facets, local_edges, locate_rows, unique_rows
-from elastoplast.mesh.checks import check_conforming, check_facet_groups, merge_coincident_nodes
+from elastoplast.mesh.checks import check_conforming, check_facet_groups, merge_coincident_nodes, reorient
 from elastoplast.errors import InputError
 from elastoplast.errors import finite_float, short_repr
 
 
 def read_only(a) -> np.ndarray:
-    """A read-only view of ``a`` (the caller's own array stays as it was)."""
+    """A read-only view of ``a`` (the caller's own array stays as it was); an array that
+    is already read-only is returned as it is, so that sealing twice keeps its identity."""
+    if isinstance(a, np.ndarray) and not a.flags.writeable:
+        return a
     view = np.asarray(a).view()
     view.flags.writeable = False
     return view
@@ -401,6 +404,7 @@ def read_mesh(path: str | Path) -> Mesh:
     untagged = {k: groups.pop(k) for k in [k for k in groups if k.startswith(_UNTAGGED)]}
     mesh = Mesh(points=points[used], cells=renumber[body], groups=groups, other_groups=others)
     uniq, counts = check_conforming(mesh.points, mesh.cells, "mesh.file")
+    mesh = replace(mesh, cells=reorient(mesh.points, mesh.cells, "mesh.file"))
     check_facet_groups(uniq, counts, groups, mesh.n_nodes, "mesh.file")
     check_facet_groups(uniq, counts, untagged, mesh.n_nodes, "mesh.file", boundary_only=False)
     _check_lines_are_edges(mesh, renumber[target[lines]], path)

@@ -224,3 +224,36 @@ def check_facet_groups(uniq: np.ndarray, counts: np.ndarray, groups: Mapping[str
 # ----------------------------------------------------------------------------
 
 
+
+
+def reorient(points: np.ndarray, cells: np.ndarray, field: str) -> np.ndarray:
+    """``cells`` with every simplex positively oriented, or an InputError naming ``field``
+    for a folded mesh. Elements listed clockwise (a mirrored half model, mirrored parts
+    joined) are a valid geometry listed the other way round: their first two vertices
+    are swapped, with a warning saying how many. A fold is told apart by the two
+    elements of an interior facet (a conforming mesh, :func:`check_conforming`): in a
+    valid mesh their opposite vertices lie on opposite sides of it whatever the listing;
+    in a folded one some pair lies on the same side, and the mesh is refused."""
+    X = points[cells]
+    det = np.linalg.det(np.swapaxes(X[:, 1:] - X[:, :1], 1, 2))
+    negative = det < 0
+    if not np.any(negative) or np.all(negative | (det == 0)):
+        return cells  # one orientation throughout (a clockwise one is handled by the volumes' sign)
+    facets, owner, local = element_facets(cells)
+    _, inverse, counts = unique_rows(facets, points.shape[0])
+    opposite = points[cells[owner, local]]
+    F = points[facets]
+    side = np.sign(np.linalg.det(np.concatenate([F[:, 1:] - F[:, :1], (opposite - F[:, 0])[:, None]], axis=1)))
+    interior = np.flatnonzero(counts[inverse] == 2)
+    order = interior[np.argsort(inverse[interior], kind="stable")].reshape(-1, 2)
+    folded = (side[order[:, 0]] == side[order[:, 1]]) & (side[order[:, 0]] != 0)
+    if np.any(folded):
+        first = owner[order[np.flatnonzero(folded)[0]]].tolist()
+        raise InputError(field, f"the mesh folds over itself: {int(folded.sum())} interior facet(s) have both their "
+                                f"elements on one side (e.g. elements {first}); {int(negative.sum())} of "
+                                f"{cells.shape[0]} elements are listed with the opposite orientation")
+    oriented = cells.copy()
+    oriented[negative, :2] = oriented[negative, 1::-1]
+    warnings.warn(f"{int(negative.sum())} of {cells.shape[0]} elements were listed with the opposite orientation "
+                  "(as a mirrored part is): reoriented")
+    return oriented

@@ -204,7 +204,7 @@ def solve_depth_path(disc: Discretization, depths: Any, method: str = "conic", *
     imprint is that step's U). Returns the path (``forces`` of its steps are the found
     forces; ``result.forces`` holds the prescribed depths) and each step's search.
     """
-    from elastoplast.problem.definition import check_depths
+    from elastoplast.problem.load import check_depths
 
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     if disc.state is not None:
@@ -216,9 +216,10 @@ def solve_depth_path(disc: Discretization, depths: Any, method: str = "conic", *
     searches: list[DepthSolution] = []
     largest = [0.0]
 
-    def step_solve(make_step, delta: float, prev: PathStep | None, before: PathStep | None):
+    def step_solve(make_step, delta: float, prev: PathStep | None, before: PathStep | None,
+                   step_opts: SolverOptions):
         def at(f: float) -> Solution:
-            return solve(make_step(f), m_run.name, opts)
+            return solve(make_step(f), m_run.name, step_opts)
 
         if prev is None:
             touch = float(np.min(disc.psi))

@@ -117,6 +117,8 @@ class PathResult:
     steps: list[PathStep] = field(default_factory=list)
     time_s: float = 0.0
     control: str = "force"  # "displacement" for a depth path (ep.solve_depth_path)
+    #: why the path stopped before its end with every step run converged ("" if it did not)
+    stopped: str = ""
 
     @property
     def converged(self) -> bool:
@@ -185,7 +187,9 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
     one), so ``result.steps`` may be shorter than ``forces``. ``warm_start``: the
     iterative methods (newton, uzawa, uzawa-fast) start each step from the last
     increment scaled to the next force step; the conic methods (interior points)
-    always start cold. ``callback(step)`` is called after each step.
+    always start cold. ``callback(step)`` is called after each step. ``time_limit``
+    bounds the whole path: each step is given what is left, and when nothing is the
+    path stops (``result.stopped`` says why; its status is ``time_limit``).
     Options are given as for :func:`~elastoplast.solvers.registry.solve`.
     """
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
@@ -200,10 +204,10 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
         raise InputError("load_steps", f"is {opts.load_steps}: a path takes no hidden sub-steps (they would change "
                                        "the answer of Prandtl-Reuss' law); put the intermediate forces in the path")
 
-    def step_solve(make_step, force: float, prev: PathStep | None,
-                   before: PathStep | None) -> tuple[Solution, float, bool]:
+    def step_solve(make_step, force: float, prev: PathStep | None, before: PathStep | None,
+                   step_opts: SolverOptions) -> tuple[Solution, float, bool]:
         start = _guess(prev, before, force) if warm_start else None
-        return run_from(make_step(force), m_run, opts, start), force, start is not None and name in WARM_STARTS
+        return run_from(make_step(force), m_run, step_opts, start), force, start is not None and name in WARM_STARTS
 
     return run_path(disc, forces, name, opts, step_solve, callback)
 
@@ -211,9 +215,11 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
 def run_path(disc: Discretization, loads: Sequence[float], name: str, opts: SolverOptions, step_solve,
              callback=None) -> PathResult:
     """The steps of a path from the unloaded state: ``step_solve(make_step, load, prev,
-    before) -> (solution, force, warm_started)`` solves one step (``make_step(F)`` is
-    the step's discretisation at the force F; ``load`` a force, or a displacement under
-    depth control), then the state is advanced as :func:`solve_path` documents."""
+    before, step_opts) -> (solution, force, warm_started)`` solves one step
+    (``make_step(F)`` is the step's discretisation at the force F; ``load`` a force, or
+    a displacement under depth control; ``step_opts`` the options with what is left of
+    the path's ``time_limit``), then the state is advanced as :func:`solve_path`
+    documents."""
     t0 = time.perf_counter()
     forces = tuple(loads)
     m, n_el = disc.material, disc.n_elements
@@ -222,8 +228,18 @@ def run_path(disc: Discretization, loads: Sequence[float], name: str, opts: Solv
     u_free, kappa = np.zeros(disc.n_free), np.zeros(n_el)
     result = PathResult(name, forces)
     prev = before = None
+    limit, stopped = opts.time_limit, ""
     for i, load in enumerate(forces):
-        sol, force, warm = step_solve(partial(disc.step, state=state, u_free=u_free), load, prev, before)
+        if limit is not None:  # the limit bounds the whole path: each step gets what is left
+            left = limit - (time.perf_counter() - t0)
+            if left <= 0:
+                stopped = (f"the time limit of {limit:g} s ran out after {i} of {len(forces)} steps "
+                           "(it bounds the whole path)")
+                break
+            step_opts = replace(opts, time_limit=left)
+        else:
+            step_opts = opts
+        sol, force, warm = step_solve(partial(disc.step, state=state, u_free=u_free), load, prev, before, step_opts)
         du = disc.free_displacement(sol.u)
         d_eps = disc.strain(du)
         beyond = small_strain_note(disc, u_free + du)  # the total strain, not the increment's
@@ -248,4 +264,4 @@ def run_path(disc: Discretization, loads: Sequence[float], name: str, opts: Solv
             break
         state = Prestate.of(m, sol.sigma, sol.xi, max(state.displacement, np.abs(u_free).max(initial=0.0), abs(sol.U)))
         before, prev = prev, step
-    return replace(result, time_s=time.perf_counter() - t0)
+    return replace(result, time_s=time.perf_counter() - t0, stopped=stopped)

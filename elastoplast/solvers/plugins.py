@@ -18,6 +18,7 @@ its run raises :class:`PluginError` (the command line's internal-error exit), an
 
 from __future__ import annotations
 
+import copy
 import importlib
 import importlib.metadata
 import inspect
@@ -29,12 +30,12 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from elastoplast.certificate.kkt import certify, real_number, shaped
+from elastoplast.certificate.kkt import certify, real_number
 from elastoplast.certificate.solution import Solution, Status, make_solution
 from elastoplast.errors import InputError, elide, short_repr
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import return_mapping
-from elastoplast.options import SolverOptions
+from elastoplast.options import SolverOptions, check_array
 from elastoplast.solvers.loop import within_tolerance
 
 #: the entry-point group a distribution declares its methods in
@@ -61,6 +62,13 @@ def one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {elide(text[0], 200)}" if text else type(exc).__name__
 
 
+def exited(exc: BaseException) -> str:
+    """:func:`one_line`, and for ``SystemExit`` the call that raised it (its code)."""
+    if isinstance(exc, SystemExit):
+        return f"SystemExit: sys.exit({elide(repr(exc.code), 60)}) was called"
+    return one_line(exc)
+
+
 def is_spec(name: str) -> bool:
     """Whether ``name`` is spelled as an import (``package.module:object``)."""
     return ":" in name
@@ -79,8 +87,8 @@ def import_object(spec: str, field: str) -> Any:
             raise InputError(field, f"cannot import {module_name!r} for method {spec!r}: no module named {exc.name!r} "
                                     "(install it, or put its folder on PYTHONPATH)") from None
         raise InputError(field, f"importing {module_name!r} for method {spec!r} failed: {one_line(exc)}") from None
-    except Exception as exc:  # a syntax error, or anything the module raises at import
-        raise InputError(field, f"importing {module_name!r} for method {spec!r} failed: {one_line(exc)}") from None
+    except (Exception, SystemExit) as exc:  # a syntax error, sys.exit(), anything the module raises at import
+        raise InputError(field, f"importing {module_name!r} for method {spec!r} failed: {exited(exc)}") from None
     for attr in attrs.split("."):
         if not hasattr(obj, attr):
             raise InputError(field, f"module {module_name!r} has no attribute {attrs!r} (method {spec!r})")
@@ -129,9 +137,9 @@ def load_entry_point(entry: importlib.metadata.EntryPoint, field: str) -> Any:
     """The object ``entry`` names, or an InputError naming its distribution."""
     try:
         return entry.load()
-    except Exception as exc:
+    except (Exception, SystemExit) as exc:
         raise InputError(field, f"entry point {entry.name!r} = {entry.value!r} of {distribution_of(entry)} failed "
-                                f"to load: {one_line(exc)}") from None
+                                f"to load: {exited(exc)}") from None
 
 
 def check_function(fn: Any, where: str, field: str) -> None:
@@ -154,12 +162,12 @@ def judged(run: Callable[[Discretization, SolverOptions], Any], name: str
 
     def judged_run(disc: Discretization, options: SolverOptions) -> Solution:
         start = time.perf_counter()
-        try:
-            out = run(disc, options)
+        try:  # its own copy (read-only arrays, its own attributes): judged against the problem as given
+            out = run(copy.copy(disc), options)
         except (InputError, MemoryError):
             raise
-        except Exception as exc:
-            raise PluginError(f"method {name!r} raised {one_line(exc)}") from exc
+        except (Exception, SystemExit) as exc:  # sys.exit() in a plug-in ends nothing but the plug-in
+            raise PluginError(f"method {name!r} raised {exited(exc)}") from exc
         return judge(disc, out, name, options.tol, time.perf_counter() - start)
 
     judged_run.__doc__ = run.__doc__
@@ -175,13 +183,23 @@ def guarded(check: Callable[[Discretization, SolverOptions], None] | None, name:
 
     def guarded_check(disc: Discretization, options: SolverOptions) -> None:
         try:
-            check(disc, options)
+            check(copy.copy(disc), options)
         except (InputError, MemoryError):
             raise
-        except Exception as exc:
-            raise PluginError(f"method {name!r}: its check raised {one_line(exc)}") from exc
+        except (Exception, SystemExit) as exc:
+            raise PluginError(f"method {name!r}: its check raised {exited(exc)}") from exc
 
     return guarded_check
+
+
+def nodal(u: Any, disc: Discretization) -> np.ndarray:
+    """A method's ``u`` as given: numbers of shape ``(n_nodes, d)``, never reshaped (a
+    transposed or flattened ``u`` is a bug of the method, which a reshape would hide)."""
+    shape = (disc.mesh.n_nodes, disc.dim)
+    arr = check_array("u", u)
+    if arr.shape != shape:
+        raise InputError("u", f"expected shape {shape} (n_nodes, d), got {arr.shape}")
+    return arr
 
 
 def judge(disc: Discretization, out: Any, name: str, tol: float, elapsed: float) -> Solution:
@@ -203,7 +221,7 @@ def judge(disc: Discretization, out: Any, name: str, tol: float, elapsed: float)
             u, U, sigma, xi, lam = out.u, out.U, out.sigma, out.xi, out.contact_force
         elif isinstance(out, tuple) and len(out) in (2, 4):
             u, U = out[0], out[1]
-            u = shaped(u, (disc.mesh.n_nodes, disc.dim), "u")
+            u = nodal(u, disc)
             if len(out) == 4:
                 sigma, xi = out[2], out[3]
             else:
@@ -211,7 +229,7 @@ def judge(disc: Discretization, out: Any, name: str, tol: float, elapsed: float)
         else:
             raise PluginError(f"method {name!r} returned {short_repr(out)}: expected a Solution, (u, U) or "
                               "(u, U, sigma, xi)")
-        u = shaped(u, (disc.mesh.n_nodes, disc.dim), "u")
+        u = nodal(u, disc)
         U = real_number("U", U)
         sol = make_solution(disc, method=name, status=Status.CONVERGED, sigma=sigma, xi=xi,
                             u_free=disc.free_displacement(u), U=U, contact_force=lam, iterations=iterations,

@@ -1,27 +1,8 @@
 """``elastoplast check PROBLEM.toml ANSWER [--tol T] [--bounds] [--out DIR]``: the KKT
 certificate of an answer computed anywhere (another program, another method, by hand).
 
-ANSWER is one of:
-
-* an ``.npz`` holding ``u`` (``n_nodes x d``: the total nodal displacements, zero at the
-  fixed components, in the problem's units) and ``U`` (one number, the rigid body's
-  displacement); optionally ``sigma`` (``n_elements x k``, Mandel order of docs/math.md:
-  2D ``s11, s22, s33, sqrt2 s12``, 3D ``s11, s22, s33, sqrt2 s23, sqrt2 s13, sqrt2 s12``)
-  and ``xi`` (``n_elements``), both or neither;
-* a ``.vtu`` with point data ``displacement`` (``n_nodes x 3``, or ``x d``; in 2D the third
-  column zero) and field data ``U``, or, lacking that, the ``summary.json`` written beside
-  it by ``elastoplast solve`` (meshio does not write field data to VTU files, so the
-  ``solution.vtu`` of a solve carries U there). Its points must be the mesh's nodes, in
-  the same order or in any other (then matched by position, with a note).
-
-Node order (:func:`node_order`): the order of the points of ``solution.vtu``, which is
-that of ``Discretization.mesh.points``. For a mesh file: the file's nodes that some
-triangle or tetrahedron uses, in file order; nodes no simplex uses (gmsh's geometry
-points) are dropped, and of coincident nodes (closer than ``MERGE_TOLERANCE`` times the
-mesh extent, merged with a warning) only the first in file order stays. For the
-generators: ``i + (nx+1) j [+ (nx+1)(ny+1) k]`` on the grid of grid lines, x fastest;
-``pattern = "crossed"`` appends the centres of the squares, x fastest. Elements (for
-``sigma``, ``xi``): the mesh's order, the file's simplices in file order.
+ANSWER is an ``.npz`` (arrays ``u``, ``U``, optionally ``sigma`` and ``xi``) or a ``.vtu``
+with its U; the formats and the node order are stated in :mod:`elastoplast.io.answers`.
 
 The answer is read by :func:`~elastoplast.io.answers.read_answer` and judged like every
 built-in method's (:func:`~elastoplast.studies.answer.certify_answer`). ``--bounds`` adds the continuum upper bound of this displacement field

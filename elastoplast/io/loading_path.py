@@ -122,10 +122,13 @@ def yielded(step: PathStep, disc: Discretization, tol: float) -> np.ndarray:
 
 def step_entry(disc: Discretization, step: PathStep) -> dict[str, Any]:
     """A step's entry of ``summary.json``'s ``"path"``: :meth:`PathStep.summary` and
-    the contact radius (half-width in 2D) and largest contact pressure after the step."""
+    the contact radius (half-width in 2D), the number of active contact nodes (the relative
+    threshold of a plain solve's summary, ``ACTIVE_FORCE_SHARE``) and largest contact
+    pressure after the step."""
     sol = step.solution
     finite = sol.contact_pressure[np.isfinite(sol.contact_pressure)]
     return {**step.summary(disc), "contact_radius": contact_radius(disc, sol.active, sol.contact_pressure),
+            "n_active_contact_nodes": int(np.sum(sol.active)),
             "max_contact_pressure": float(finite.max()) if finite.size else float("nan")}
 
 

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from elastoplast.certificate.kkt import ROUND_OFF
 from elastoplast.certificate.solution import Solution
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
@@ -80,6 +81,17 @@ class DepthSolution:
             out["contact_force_sum"] = 0.0
             out["status"] = "converged"
         return out
+
+
+def floor_share(tol: float) -> float:
+    """The share of the largest force so far at which a depth path's step looks for
+    lift-off: ``FLOOR_SHARE``, or more where the method's ``tol`` cannot be certified
+    there. After loading, the state's stresses (of the size of the largest force) enter
+    every contact force computed, which then carries their round-off, ``ROUND_OFF`` times
+    that size; the force balance is relative to the step's F, so F must be at least
+    ``ROUND_OFF / tol`` of it (newton's tol 1e-10: 1.4e-4; measured on a cylinder, a
+    step at 1e-6 stalled at a force-balance residual of 7e-10)."""
+    return max(FLOOR_SHARE, ROUND_OFF / tol)
 
 
 def check_displacement(delta: Any, field_name: str = "load.displacement") -> float:
@@ -200,7 +212,7 @@ def solve_depth_path(disc: Discretization, depths: Any, method: str = "conic", *
     prescribed displacement, each step's force found as :func:`solve_depth` finds it
     (the first guess is the last step's force). A step whose depth the body no longer
     reaches (unloading past the residual imprint) is a lift-off: it is solved at
-    ``FLOOR_SHARE`` times the largest force so far (F = 0 to that share; the residual
+    :func:`floor_share` times the largest force so far (F = 0 to that share; the residual
     imprint is that step's U). Returns the path (``forces`` of its steps are the found
     forces; ``result.forces`` holds the prescribed depths) and each step's search.
     """
@@ -231,7 +243,7 @@ def solve_depth_path(disc: Discretization, depths: Any, method: str = "conic", *
             else:
                 search = find_force(at, delta, 0.0, touch, first, depth_tol)
         else:
-            floor = FLOOR_SHARE * max(largest[0], prev.force)
+            floor = floor_share(step_opts.tol) * max(largest[0], prev.force)
             low = at(floor)
             if not low.converged or low.U >= delta:
                 search = DepthSolution(delta, floor, low, 0.0, True, delta - float(low.U), (floor,), (float(low.U),))

@@ -470,6 +470,18 @@ def _failed(out: Mapping[str, Any]) -> bool:
     return out["status"] != "converged" if "status" in out else not out["solution"].converged
 
 
+def recording_warnings(fn, *args) -> dict[str, Any]:
+    """The worker side of :func:`gather_results`: ``fn(*args)`` with its warnings recorded
+    instead of printed (a worker process prints them raw on the terminal, numpy's once per
+    array operation); the result gains ``"warnings"``, each distinct ``(category, text)``
+    once, which :func:`gather_results` warns again in the calling process."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = fn(*args)
+    said = dict.fromkeys((w.category.__name__, str(w.message)) for w in caught)
+    return {**out, "warnings": list(said)}
+
+
 def gather_results(client: Any, tasks: Mapping[str, tuple], desc: str, progress: bool) -> Iterator[tuple[str, dict]]:
     """Warm the workers up, submit ``{key: (fn, spec, *args)}`` and yield
     ``(key, result)`` as tasks finish; a task whose worker died yields an error
@@ -477,7 +489,7 @@ def gather_results(client: Any, tasks: Mapping[str, tuple], desc: str, progress:
     from distributed import as_completed
 
     client.run(warm_up, sorted({task[1]["method"] for task in tasks.values()}))
-    futures = {client.submit(*task, key=key, pure=False): key for key, task in tasks.items()}
+    futures = {client.submit(recording_warnings, *task, key=key, pure=False): key for key, task in tasks.items()}
     failed = 0
     with _progress(len(futures), desc, progress) as bar:
         for fut in as_completed(futures):
@@ -486,6 +498,8 @@ def gather_results(client: Any, tasks: Mapping[str, tuple], desc: str, progress:
             except Exception as exc:  # a lost worker, a cancelled task
                 out = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
             fut.release()
+            for category, text in out.pop("warnings", ()):  # said here, where the command's rules apply
+                warnings.warn(text, RuntimeWarning if category == "RuntimeWarning" else UserWarning, stacklevel=2)
             failed += _failed(out)
             bar.update(1)
             bar.set_postfix(failed=failed)

@@ -128,11 +128,23 @@ def solve_depth(disc: Discretization, delta: float, method: str = DEFAULT_METHOD
     touch = float(np.min(disc.psi))
     if delta - touch <= 0:
         return DepthSolution(delta, 0.0, None, 0.0, True, delta - touch)
-    first = float(force_guess if force_guess is not None else disc.force)
-    if not first > 0:
-        raise InputError("force_guess", f"must be > 0, got {force_guess!r}")
+    first = disc.force if force_guess is None else check_force_guess(disc, force_guess)
     return find_force(lambda f: solve(disc.with_force(f), method, opts), delta, 0.0, touch, first,
                       depth_tol)
+
+
+def check_force_guess(disc: Discretization, force_guess: Any) -> float:
+    """``force_guess`` as a float: a finite number > 0 (not a string, not a boolean) that
+    ``disc.with_force`` takes (within the magnitudes a solver can scale), else an
+    :class:`InputError` naming ``force_guess`` (not the problem's ``load.force``)."""
+    if isinstance(force_guess, (bool, np.bool_)) or not isinstance(force_guess, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(force_guess) or not force_guess > 0:
+        raise InputError("force_guess", f"must be a finite number > 0, got {force_guess!r}")
+    try:
+        disc.with_force(float(force_guess))
+    except InputError as exc:
+        raise InputError("force_guess", exc.message) from None
+    return float(force_guess)
 
 
 def check_depth_tol(depth_tol: Any) -> None:

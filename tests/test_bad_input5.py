@@ -223,3 +223,15 @@ def test_no_slope_from_an_unloading_within_the_accuracy_of_U():
     slope, op = unloading_slope(real), path_oliver_pharr(adisc, real)
     assert slope is not None and op is not None
     assert slope["S"] == pytest.approx((3000.0 - 1500.0) / (real.steps[0].U - real.steps[1].U))
+
+
+def test_time_limit_bounds_a_whole_depth_search(tmp_path):
+    """A depth solve makes several solves (8 for this one by uzawa on 60 x 30 cells,
+    each under 0.3 s, the whole over 1 s): --time-limit 0.3 gave each its 0.3 s and
+    exited 0. Now the solves share it: the search ends with status time_limit, exit 1."""
+    data = small_data(displacement=0.05)
+    data["mesh"]["divisions"] = [60, 30]
+    problem = write_toml(tmp_path / "d.toml", data)
+    out = tmp_path / "out"
+    assert main(["solve", str(problem), "--method", "uzawa", "--time-limit", "0.3", "--out", str(out), "--quiet"]) == 1
+    assert json.loads((out / "summary.json").read_text())["status"] == "time_limit"

@@ -55,8 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
     p.add_argument("--method", help=f"solver, one of {sorted(METHODS)} (default: the file's [solver] method, else conic)")
     p.add_argument("--out", default="results", help="output folder, new or holding an earlier output (default: results)")
-    _add_solver_arguments(p, time_help="wall-clock limit in seconds of the whole run: the solve, or every step of a "
-                                       "loading path together (the path stops with status time_limit once spent)")
+    _add_solver_arguments(p, time_help="wall-clock limit in seconds of the whole run: the solve, every step of a "
+                                       "loading path together (the path stops with status time_limit once spent), "
+                                       "or every solve of a depth control's force search together")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
     p = sub.add_parser("bounds", help="certified bounds on the continuous problem: energy, stress error and U")

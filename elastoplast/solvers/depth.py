@@ -21,13 +21,14 @@ the obstacle's origin is).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from elastoplast.certificate.kkt import ROUND_OFF
-from elastoplast.certificate.solution import Solution
+from elastoplast.certificate.solution import Solution, Status
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
 from elastoplast.options import SolverOptions
@@ -83,6 +84,20 @@ class DepthSolution:
         return out
 
 
+#: the time limit of a solve started once a search's budget is spent (it stops after one iteration)
+SPENT = 1e-9
+
+
+def time_left(opts: SolverOptions):
+    """``opts`` with ``time_limit`` what is left, from now, of its own: a depth search makes
+    many solves and ``time_limit`` bounds them together (a solve started when nothing is
+    left gets ``SPENT`` and ends with status ``time_limit``, which ends the search)."""
+    if opts.time_limit is None:
+        return lambda: opts
+    end = time.perf_counter() + opts.time_limit
+    return lambda: replace(opts, time_limit=max(end - time.perf_counter(), SPENT))
+
+
 def floor_share(tol: float) -> float:
     """The share of the largest force so far at which a depth path's step looks for
     lift-off: ``FLOOR_SHARE``, or more where the method's ``tol`` cannot be certified
@@ -129,8 +144,8 @@ def solve_depth(disc: Discretization, delta: float, method: str = DEFAULT_METHOD
     if delta - touch <= 0:
         return DepthSolution(delta, 0.0, None, 0.0, True, delta - touch)
     first = disc.force if force_guess is None else check_force_guess(disc, force_guess)
-    return find_force(lambda f: solve(disc.with_force(f), method, opts), delta, 0.0, touch, first,
-                      depth_tol)
+    left = time_left(opts)
+    return find_force(lambda f: solve(disc.with_force(f), method, left()), delta, 0.0, touch, first, depth_tol)
 
 
 def check_force_guess(disc: Discretization, force_guess: Any) -> float:
@@ -175,8 +190,27 @@ def find_force(at, delta: float, lo_f: float, lo_u: float, first: float, depth_t
             sol = None
         forces.append(force)
         depths.append(float("nan") if sol is None else float(sol.U))
+        if sol is not None and sol.status is Status.TIME_LIMIT:
+            raise _Spent(DepthSolution(delta, force, sol, abs(float(sol.U) - delta) / depth, False, depth,
+                                       tuple(forces), tuple(depths)))
         return sol
 
+    try:
+        return _search(solve_at, delta, lo_f, lo_u, first, depth_tol, lo_sol, forces, depths)
+    except _Spent as spent:  # the time limit: the last solve, not converged, is the answer
+        return spent.answer
+
+
+class _Spent(Exception):
+    def __init__(self, answer: DepthSolution):
+        super().__init__("time limit")
+        self.answer = answer
+
+
+def _search(solve_at, delta: float, lo_f: float, lo_u: float, first: float, depth_tol: float,
+            lo_sol: Solution | None, forces: list[float], depths: list[float]) -> DepthSolution:
+    """The bracket and regula falsi of :func:`find_force`, each solve by ``solve_at``."""
+    depth = delta - lo_u
     lo_g = lo_u - delta
     hi_f = max(first, 2.0 * lo_f)
     sol = solve_at(hi_f)
@@ -242,8 +276,10 @@ def solve_depth_path(disc: Discretization, depths: Any, method: str = "conic", *
 
     def step_solve(make_step, delta: float, prev: PathStep | None, before: PathStep | None,
                    step_opts: SolverOptions):
+        left = time_left(step_opts)
+
         def at(f: float) -> Solution:
-            return solve(make_step(f), m_run.name, step_opts)
+            return solve(make_step(f), m_run.name, left())
 
         if prev is None:
             touch = float(np.min(disc.psi))

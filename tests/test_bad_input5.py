@@ -235,3 +235,17 @@ def test_time_limit_bounds_a_whole_depth_search(tmp_path):
     out = tmp_path / "out"
     assert main(["solve", str(problem), "--method", "uzawa", "--time-limit", "0.3", "--out", str(out), "--quiet"]) == 1
     assert json.loads((out / "summary.json").read_text())["status"] == "time_limit"
+
+
+def test_an_axisymmetric_contact_zone_is_centred_on_the_axis(tmp_path, capsys):
+    """contact_center = [1.0] in an axisymmetric model was solved as the disc [0, 3]
+    (the zone [1 - 2, 1 + 2] cut at the axis), not what the key says: refused naming
+    it; [0] (the default) is accepted."""
+    for centre, code in (([1.0], 2), ([0.0], 0)):
+        data = axisymmetric_data()
+        data["mesh"]["contact_center"] = centre
+        problem = write_toml(tmp_path / "a.toml", data)
+        assert main(["solve", str(problem), "--method", "newton", "--out", str(tmp_path / "o"), "--quiet"]) == code
+        if code == 2:
+            lines = error_lines(capsys.readouterr().err)
+            assert len(lines) == 1 and lines[0].startswith("error: mesh.contact_center: in an axisymmetric model")

@@ -382,11 +382,9 @@ def make_graded_mesh(section: Mapping, prefix: str = "mesh") -> Mesh:
 
 
 def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh", axisymmetric: bool = False) -> Mesh:
-    """Read ``file`` or run the ``generator`` ('rectangle' 2D, 'box' 3D); the generator's
-    settings are checked by :func:`~elastoplast.mesh.base.structured_mesh` itself (fields
-    ``mesh.<key>``), once for this table and for Python callers. For an axisymmetric
-    model the generated rectangle starts on the axis (``origin`` [0, 0]) with its
-    contact zone centred there (``contact_center`` [0]) unless they are given."""
+    """Read ``file`` or run the ``generator``, whose settings :func:`~elastoplast.mesh.base.structured_mesh`
+    checks (fields ``mesh.<key>``). An axisymmetric model's rectangle starts on the axis
+    (``origin`` [0, 0] unless given), its contact zone a disc about it (``contact_center`` [0] or none)."""
     _only(section, {"file", "generator", "size", "divisions", "origin", "grading", "contact_radius", "contact_center",
                     "pattern", "axisymmetric", "h_contact", "h_far"}, prefix)
     if ("file" in section) == ("generator" in section):
@@ -417,7 +415,10 @@ def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh", axisymmetr
     origin, centre = section.get("origin"), section.get("contact_center")
     if axisymmetric and dim == 2:
         origin = [0.0, 0.0] if origin is None else origin
-        centre = [0.0] if centre is None else centre
+        if centre is not None and not (isinstance(centre, list) and centre in ([0], [0.0]) and centre[0] is not False):
+            raise InputError(f"{prefix}.contact_center", "in an axisymmetric model the contact zone is a disc about "
+                                                         f"the axis r = 0: leave it out, got {short_repr(centre)}")
+        centre = [0.0]
     return structured_mesh(size, section["divisions"], section["contact_radius"], origin=origin,
                            contact_center=centre, grading=section.get("grading", 1.0),
                            pattern=section.get("pattern", "diagonal"))

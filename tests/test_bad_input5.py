@@ -249,3 +249,18 @@ def test_an_axisymmetric_contact_zone_is_centred_on_the_axis(tmp_path, capsys):
         if code == 2:
             lines = error_lines(capsys.readouterr().err)
             assert len(lines) == 1 and lines[0].startswith("error: mesh.contact_center: in an axisymmetric model")
+
+
+def test_check_bounds_on_an_axisymmetric_model_is_refused_before_the_check(tmp_path, capsys):
+    """check --bounds on an axisymmetric answer ran the check, printed its residuals and
+    then refused (mesh.axisymmetric): now refused first, naming --bounds, nothing printed."""
+    data = axisymmetric_data()
+    problem = write_toml(tmp_path / "a.toml", data)
+    disc = ep.discretize(ep.problem_from_dict(data))
+    sol = ep.solve(disc, "newton")
+    np.savez(tmp_path / "a.npz", u=sol.u, U=sol.U)
+    assert main(["check", str(problem), str(tmp_path / "a.npz"), "--bounds", "--quiet"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    lines = error_lines(captured.err)
+    assert len(lines) == 1 and lines[0].startswith("error: --bounds: a continuum bound is not available"), lines

@@ -264,3 +264,21 @@ def test_check_bounds_on_an_axisymmetric_model_is_refused_before_the_check(tmp_p
     assert captured.out == ""
     lines = error_lines(captured.err)
     assert len(lines) == 1 and lines[0].startswith("error: --bounds: a continuum bound is not available"), lines
+
+
+def test_a_suite_reads_every_problem_file_before_any_run(tmp_path, capsys):
+    """A suite folder holding a problem with nu = 0.6 ran, timed that file as a failure
+    ('error: reading the problem') and exited 1; a depth-controlled file was 'refused'
+    with advice for Python. Both are now bad input before any run: exit 2, one line
+    naming the file and the field, no profile written."""
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    write_toml(suite / "a.toml", small_data())
+    for bad, field in ((dict(small_data(), material={**small_data()["material"], "nu": 0.6}), "material.nu"),
+                       (small_data(displacement=0.01), "load.displacement")):
+        write_toml(suite / "b.toml", bad)
+        out = tmp_path / "profile"
+        assert main(["compare", str(suite), "--method", "newton", "--out", str(out), "--quiet"]) == 2
+        lines = error_lines(capsys.readouterr().err)
+        assert len(lines) == 1 and lines[0].startswith(f"error: b.toml: {field}:"), lines
+        assert not out.exists()

@@ -282,3 +282,18 @@ def test_a_suite_reads_every_problem_file_before_any_run(tmp_path, capsys):
         lines = error_lines(capsys.readouterr().err)
         assert len(lines) == 1 and lines[0].startswith(f"error: b.toml: {field}:"), lines
         assert not out.exists()
+
+
+def test_a_graded_half_model_keeps_its_obstacle_on_the_axis(tmp_path, capsys):
+    """The graded block with its default boundary is a symmetric half about x = 0 (u_x = 0
+    on xmin): an obstacle centred at x = 1 was solved as if mirrored there, silently.
+    Refused naming obstacle.center; centred on the axis it solves."""
+    pytest.importorskip("gmsh")
+    data = {"mesh": {"generator": "graded", "size": [20.0, 20.0], "contact_radius": 2.0, "h_contact": 0.5,
+                     "h_far": 5.0},
+            "material": {"E": 200000.0, "nu": 0.3, "yield_stress": 1200.0, "hardening": 10000.0},
+            "obstacle": {"shape": "cylinder", "radius": 40.0, "center": [1.0]}, "load": {"force": 2000.0}}
+    with pytest.raises(ep.InputError, match="obstacle.center: is \\[1.0\\]: the graded block"):
+        ep.problem_from_dict(data)
+    data["obstacle"]["center"] = [0.0]
+    assert list(ep.problem_from_dict(data).obstacle.center) == [0.0]

@@ -24,7 +24,7 @@ from elastoplast.limits import as_path, read_bytes
 from elastoplast.errors import InputError
 from elastoplast.fem.material import Material
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
-from elastoplast.mesh.graded import graded_mesh, symmetry_planes
+from elastoplast.mesh.graded import check_centre_on_axis, graded_mesh, symmetry_planes
 from elastoplast.errors import finite_float, short_repr
 from elastoplast.problem.load import check_depths, check_forces, depth_force_guess
 from elastoplast.problem.expressions import SAFE_FUNCTIONS, compile_expression
@@ -514,13 +514,11 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     and read by :func:`elastoplast.solvers.registry.solver_settings`.
     """
     _only(data, SECTIONS, "problem")
-    if base_dir is None:
-        base_dir = "."
+    base_dir = "." if base_dir is None else base_dir
     if not isinstance(base_dir, (str, os.PathLike)):
         raise InputError("base_dir", f"must be the folder mesh files are relative to (a path), got {short_repr(base_dir)}")
-    for name in ("mesh", "material", "obstacle", "load"):
-        if name not in data:
-            raise InputError(name, "section is required")
+    for name in (n for n in ("mesh", "material", "obstacle", "load") if n not in data):
+        raise InputError(name, "section is required")
     axisymmetric = data["mesh"].get("axisymmetric", False) if isinstance(data["mesh"], Mapping) else False
     mesh = make_mesh(data["mesh"], Path(base_dir), axisymmetric=axisymmetric is True)
     axisymmetric = check_axisymmetric(axisymmetric, mesh)
@@ -531,12 +529,14 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     if "generator" in data["mesh"]:
         check_generated_contact_zone(mesh, boundary)
     obstacle = make_obstacle(data["obstacle"], mesh.dim, axisymmetric=axisymmetric)
+    if data["mesh"].get("generator") == "graded" and "boundary" not in data:
+        check_centre_on_axis(obstacle.center)
     load = _only(data["load"], {"force", "path", "displacement", "displacement_path"}, "load")
     given = [k for k in ("force", "path", "displacement", "displacement_path") if k in load]
     if len(given) > 1:
-        raise InputError("load", f"give exactly one of 'force' (Hencky's problem), 'path' (a loading "
-                                             "path of Prandtl-Reuss steps), 'displacement' (depth control) or "
-                                             f"'displacement_path' (a depth path), not {' and '.join(given)}")
+        raise InputError("load", "give exactly one of 'force' (Hencky's problem), 'path' (a loading path of Prandtl-"
+                                 "Reuss steps), 'displacement' (depth control) or 'displacement_path' (a depth "
+                                 f"path), not {' and '.join(given)}")
     if "displacement" in load:
         delta = load["displacement"]
         if isinstance(delta, bool) or not isinstance(delta, (int, float)) or not np.isfinite(delta):

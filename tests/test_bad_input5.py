@@ -297,3 +297,28 @@ def test_a_graded_half_model_keeps_its_obstacle_on_the_axis(tmp_path, capsys):
         ep.problem_from_dict(data)
     data["obstacle"]["center"] = [0.0]
     assert list(ep.problem_from_dict(data).obstacle.center) == [0.0]
+
+
+def test_a_store_that_cannot_be_written_names_out(tmp_path):
+    """A file-size limit (RLIMIT_FSIZE, as a full disk acts) met while campaign creates its
+    store's index: sqlite's 'disk I/O error' was reported as 'is damaged: cannot read
+    index.sqlite ... no such table' (the clean-up's read of the empty index hid the
+    write's error). Now exit 2 naming --out as the place written to, nothing left behind."""
+    import os
+    import subprocess
+    import sys
+
+    data = small_data()
+    data["campaign"] = {"name": "full"}
+    data["sweep"] = {"load.force": [2000.0, 4315.0]}
+    campaign = write_toml(tmp_path / "c.toml", data)
+    out = tmp_path / "store"
+    code = ("import resource, sys; from elastoplast.cli.main import main; "
+            "resource.setrlimit(resource.RLIMIT_FSIZE, (2048, 2048)); "
+            f"sys.exit(main(['campaign', {str(campaign)!r}, '--out', {str(out)!r}, '--workers', '1', '--quiet']))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: --out: cannot write the store"), lines
+    assert not out.exists()

@@ -536,10 +536,19 @@ def run_campaign(campaign: Campaign, out: str | Path, *, scheduler: str | None =
         created = not store.path.exists()
     try:
         return _run(campaign, store, scheduler, client, n_workers, progress, retry_failed)
-    except InputError:  # e.g. no scheduler at the address: leave no empty store behind
-        if created and not store.rows() and {p.name for p in store.path.iterdir()} <= STORE_FILES:
+    except InputError:  # e.g. no scheduler at the address, a full disk: leave no empty store behind
+        if created and _holds_nothing(store) and {p.name for p in store.path.iterdir()} <= STORE_FILES:
             shutil.rmtree(store.path, ignore_errors=True)
         raise
+
+
+def _holds_nothing(store: Store) -> bool:
+    """No case in a store this run created (an index it could not write holds none: a full
+    disk's error, not the index's, is the one to report)."""
+    try:
+        return not store.rows()
+    except InputError:
+        return True
 
 
 def _run(campaign: Campaign, store: Store, scheduler: str | None, client: Any, n_workers: int | None,

@@ -322,3 +322,25 @@ def test_a_store_that_cannot_be_written_names_out(tmp_path):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: --out: cannot write the store"), lines
     assert not out.exists()
+
+
+def test_objects_made_by_replace_are_checked_as_a_file_is(disc):
+    """dataclasses.replace bypassed the file's checks: a Material with nu = 0.7 (bulk
+    modulus E / (3 (1 - 2 nu)) < 0) was discretised and solved, a cone of 90 degrees
+    (tan 90 = 1.6e16: a flat obstacle) discretised, a force "1" reached numpy (TypeError,
+    exit 3). Each is an InputError naming the field, as in a problem file."""
+    problem = disc.problem
+    with pytest.raises(ep.InputError, match=r"material.nu: must lie in \(-1, 0.5\), got 0.7"):
+        replace(problem, material=replace(problem.material, nu=0.7))
+    with pytest.raises(ep.InputError, match="material.E: must be a number"):
+        ep.Material("1", 0.3, 1.0, 1.0)
+    assert ep.Material(1.0, 0.3, float("inf"), 0.0).yield_stress == float("inf")  # the elastic body (osqp-elastic)
+    with pytest.raises(ep.InputError, match="load.force: must be a finite number, got '1'"):
+        replace(problem, force="1")
+    with pytest.raises(ep.InputError, match="load.displacement: must be a finite number"):
+        replace(problem, displacement=float("nan"))
+    cone = ep.problem_from_dict(axisymmetric_data()).obstacle
+    with pytest.raises(ep.InputError, match=r"obstacle.half_angle: must lie in \(0, 90\)"):
+        replace(cone, shape="cone", half_angle=90.0)
+    with pytest.raises(ep.InputError, match="obstacle.radius: must be a finite number > 0"):
+        replace(problem.obstacle, radius=-1.0)

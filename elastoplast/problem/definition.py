@@ -22,6 +22,7 @@ import numpy as np
 
 from elastoplast.limits import as_path, read_bytes
 from elastoplast.errors import InputError
+from elastoplast.fem.axisymmetry import check_axisymmetric
 from elastoplast.fem.material import Material
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
 from elastoplast.mesh.graded import check_centre_on_axis, graded_mesh, symmetry_planes
@@ -122,6 +123,13 @@ class Obstacle:
     half_angle: float | None = None
     axisymmetric: bool = False
 
+    def __post_init__(self) -> None:  # make_obstacle's ranges, also for dataclasses.replace
+        r, a = finite_float(self.radius), finite_float(self.half_angle)
+        if self.shape in ("sphere", "cylinder", "paraboloid") and not (r is not None and r > 0):
+            raise InputError("obstacle.radius", f"must be a finite number > 0, got {short_repr(self.radius)}")
+        if self.shape == "cone" and not (a is not None and 0.0 < a < 90.0):
+            raise InputError("obstacle.half_angle", f"must lie in (0, 90) degrees, got {short_repr(self.half_angle)}")
+
     def psi(self, xp: np.ndarray, field: str = "obstacle") -> np.ndarray:
         """Evaluate psi at in-plane points ``xp`` (n, d-1); refuses points outside its domain."""
         with np.errstate(all="ignore"):  # overflow to inf is refused by _check_psi
@@ -183,7 +191,11 @@ class Problem:
     displacement: float | None = None
     displacement_path: tuple[float, ...] | None = None
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # [load] checked also for dataclasses.replace (a force "1" reached numpy)
+        if not _finite_number(self.force, "load.force") > 0:
+            raise InputError("load.force", f"must be > 0, got {self.force!r}")
+        if self.displacement is not None:
+            _finite_number(self.displacement, "load.displacement")
         if self.path is not None:
             object.__setattr__(self, "path", check_forces(self.path, "load.path"))
         check_axisymmetric(self.axisymmetric, self.mesh)
@@ -220,16 +232,6 @@ class Problem:
 
         path = check_forces(forces, "load.path")
         return replace(self, force=max(path), path=path, displacement=None, displacement_path=None)
-
-
-def check_axisymmetric(value: Any, mesh: Mesh) -> bool:
-    """``mesh.axisymmetric``: a boolean, true only for a 2D mesh (the meridian plane)."""
-    if not isinstance(value, bool):
-        raise InputError("mesh.axisymmetric", f"must be true or false, got {short_repr(value)}")
-    if value and mesh.dim != 2:
-        raise InputError("mesh.axisymmetric", "an axisymmetric model is a 2D mesh of the meridian plane (r, z); "
-                                              f"this mesh is {mesh.dim}D")
-    return value
 
 
 # ----------------------------------------------------------------------------
@@ -280,14 +282,7 @@ def make_material(E: float, nu: float, yield_stress: float, hardening: float, *,
     argument must be a finite number (not a string, a boolean, None or a list)."""
     E, nu, yield_stress, hardening = (_finite_number(val, f"{prefix}.{key}") for key, val in (
         ("E", E), ("nu", nu), ("yield_stress", yield_stress), ("hardening", hardening)))
-    if not E > 0:
-        raise InputError(f"{prefix}.E", f"must be > 0, got {E!r}")
-    if not -1.0 < nu < 0.5:
-        raise InputError(f"{prefix}.nu", f"must lie in (-1, 0.5), got {nu!r}")
-    if not yield_stress > 0:
-        raise InputError(f"{prefix}.yield_stress", f"must be > 0, got {yield_stress!r}")
-    if not hardening >= 0:
-        raise InputError(f"{prefix}.hardening", f"must be >= 0, got {hardening!r}")
+    material = Material(E, nu, yield_stress, hardening)  # its ranges checked there, named material.<key>
     if nu >= 0.49:
         warnings.warn(f"{prefix}.nu = {nu:.15g} is nearly incompressible (bulk / shear modulus "
                       f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.3g}): P1 elements lock elastically and the solvers lose "
@@ -301,7 +296,7 @@ def make_material(E: float, nu: float, yield_stress: float, hardening: float, *,
             "the limit load on any mesh",
             stacklevel=2,
         )
-    return Material(E, nu, yield_stress, hardening)
+    return material
 
 
 def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle", axisymmetric: bool = False) -> Obstacle:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from elastoplast.errors import InputError, short_repr
+from elastoplast.errors import InputError
 from elastoplast.mesh.base import Mesh
 
 
@@ -73,13 +73,3 @@ def check_not_axisymmetric(problem, what: str) -> None:
     if getattr(problem, "axisymmetric", False):
         raise InputError("mesh.axisymmetric", f"{what} is not available for axisymmetric models yet (solve, paths, "
                                               "export and check are; docs/axisymmetry.md says why)")
-
-
-def check_axisymmetric(value, mesh: Mesh) -> bool:
-    """``mesh.axisymmetric``: a boolean, true only for a 2D mesh (the meridian plane)."""
-    if not isinstance(value, bool):
-        raise InputError("mesh.axisymmetric", f"must be true or false, got {short_repr(value)}")
-    if value and mesh.dim != 2:
-        raise InputError("mesh.axisymmetric", "an axisymmetric model is a 2D mesh of the meridian plane (r, z); "
-                                              f"this mesh is {mesh.dim}D")
-    return value

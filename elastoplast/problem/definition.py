@@ -22,9 +22,9 @@ import numpy as np
 
 from elastoplast.limits import as_path, read_bytes
 from elastoplast.errors import InputError
-from elastoplast.fem.axisymmetry import check_axisymmetric
 from elastoplast.fem.material import Material
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
+from elastoplast.mesh.checks import check_axisymmetric
 from elastoplast.mesh.graded import check_centre_on_axis, graded_mesh, symmetry_planes
 from elastoplast.errors import finite_float, short_repr
 from elastoplast.problem.load import check_depths, check_forces, depth_force_guess

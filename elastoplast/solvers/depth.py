@@ -178,16 +178,22 @@ def find_force(at, delta: float, lo_f: float, lo_u: float, first: float, depth_t
     forces: list[float] = []
     depths: list[float] = []
 
+    failed: list[str] = []  # why the last solve that did not converge did not: the search's own limit
+
     def solve_at(force: float) -> Solution:
         if len(forces) >= MAX_EVALUATIONS:
+            why = f"; the forces above it fail: {failed[-1]}" if failed else ""
             raise InputError("load.displacement", f"no force found for U = {delta:g} in {MAX_EVALUATIONS} solves "
-                                                  f"(last F = {forces[-1]:g}, U = {depths[-1]:g})")
+                                                  f"(last F = {forces[-1]:g}, U = {depths[-1]:g}{why})")
         try:
             sol = at(force)
         except InputError as exc:  # a force the checks refuse (above the limit load, too large a pressure)
             if exc.field != "load.force":
                 raise
             sol = None
+            failed.append(f"F = {force:g} refused ({exc.message})")
+        if sol is not None and not sol.converged:
+            failed.append(f"F = {force:g} {sol.status.value} ({sol.message})")
         forces.append(force)
         depths.append(float("nan") if sol is None else float(sol.U))
         if sol is not None and sol.status is Status.TIME_LIMIT:

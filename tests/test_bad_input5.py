@@ -344,3 +344,15 @@ def test_objects_made_by_replace_are_checked_as_a_file_is(disc):
         replace(cone, shape="cone", half_angle=90.0)
     with pytest.raises(ep.InputError, match="obstacle.radius: must be a finite number > 0"):
         replace(problem.obstacle, radius=-1.0)
+
+
+def test_a_depth_beyond_small_strains_says_why_no_force_is_found():
+    """A cone (70 degrees) 0.01 into the 8 x 8 meridian mesh: the answers that reach that
+    depth leave the small-strain model at the tip (|eps| > 0.1, status failed), so the
+    search ran out of its 60 solves and said only 'no force found'; it now names the
+    reason the forces above its last converged one fail."""
+    data = axisymmetric_data(displacement=0.01)
+    data["obstacle"] = {"shape": "cone", "half_angle": 70.0}
+    adisc = ep.discretize(ep.problem_from_dict(data))
+    with pytest.raises(ep.InputError, match="no force found .* the forces above it fail: .*small-strain"):
+        ep.solve_depth(adisc, 0.01, "newton")

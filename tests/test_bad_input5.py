@@ -356,3 +356,23 @@ def test_a_depth_beyond_small_strains_says_why_no_force_is_found():
     adisc = ep.discretize(ep.problem_from_dict(data))
     with pytest.raises(ep.InputError, match="no force found .* the forces above it fail: .*small-strain"):
         ep.solve_depth(adisc, 0.01, "newton")
+
+
+def test_a_plug_in_that_ends_its_worker_process_is_a_failed_case(tmp_path, monkeypatch, capfd):
+    """A plug-in calling os._exit in a Dask worker (no Python exception to catch) ended
+    the campaign in the workers' warm-up: 'internal error, CommClosedError', exit 3, with
+    distributed's raw log line before it. The warm-up is best effort now and the scheduler
+    quiet: the case is stored as failed (the worker lost each time it ran it), exit 1."""
+    (tmp_path / "ep_ends.py").write_text("import os\n\ndef run(disc, options):\n    os._exit(1)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path) + ":" + str(ROOT))
+    data = small_data()
+    data["mesh"]["divisions"] = [8, 4]
+    data["campaign"] = {"name": "ends"}
+    data["solver"] = {"method": "ep_ends:run"}
+    data["sweep"] = {"load.force": [2000.0]}
+    campaign = write_toml(tmp_path / "c.toml", data)
+    assert main(["campaign", str(campaign), "--out", str(tmp_path / "store"), "--workers", "1", "--quiet"]) == 1
+    err = capfd.readouterr().err
+    assert "internal error" not in err and " - distributed." not in err and "ERROR" not in err, err
+    assert "KilledWorker" in err

@@ -350,7 +350,7 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> I
     n = n_workers or machine_cores()
     # loopback only; no dashboard, and the scheduler's HTTP routes on a free port
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
-                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}, silence_logs=logging.ERROR) as cluster, \
+                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}, silence_logs=logging.CRITICAL) as cluster, \
             Client(cluster) as client:
         yield client
 
@@ -488,7 +488,10 @@ def gather_results(client: Any, tasks: Mapping[str, tuple], desc: str, progress:
     result instead."""
     from distributed import as_completed
 
-    client.run(warm_up, sorted({task[1]["method"] for task in tasks.values()}))
+    try:
+        client.run(warm_up, sorted({task[1]["method"] for task in tasks.values()}))
+    except Exception:  # a worker lost while warming up (a plug-in that ends its process): the cases say so
+        pass
     futures = {client.submit(recording_warnings, *task, key=key, pure=False): key for key, task in tasks.items()}
     failed = 0
     with _progress(len(futures), desc, progress) as bar:

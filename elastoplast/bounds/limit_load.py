@@ -41,7 +41,7 @@ coefficient). The lower bound comes from the equilibrium element
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -61,6 +61,8 @@ from elastoplast.options import SolverOptions, option
 from elastoplast.solvers.backends import clarabel_settings, solve_clarabel
 
 SQRT_2_3 = np.sqrt(2.0 / 3.0)
+#: the static program's time when the kinematic one spent the budget (Clarabel stops after an iteration)
+MIN_LOWER_TIME = 1e-3
 
 
 @dataclass(frozen=True)
@@ -444,13 +446,20 @@ def limit_load(disc: Discretization, options: LimitOptions = LimitOptions(),
     """``F_lower <= F_c <= F_upper`` from the static program of the equilibrium
     element (:func:`~elastoplast.bounds.lower.static_limit_load`) and the kinematic
     program (:func:`kinematic_limit_load`) on ``disc``'s mesh; ``disc.force`` is
-    not used."""
+    not used. ``options.time_limit`` is the whole bracket's budget: the static program
+    gets what the kinematic one left (at least ``MIN_LOWER_TIME``), unless
+    ``lower_options`` sets a smaller limit of its own."""
     _check_perfectly_plastic(disc)
     check_hencky(disc, "the limit load")
     check_not_axisymmetric(disc.problem, "the limit load")
     options, lower_options = LimitOptions.of(options), LowerBoundOptions.of(lower_options, "lower_options")
     check_lower_bound_size(disc, lower_options, limit=True)  # before the kinematic program, which would run first
+    t0 = time.perf_counter()
     upper = kinematic_limit_load(disc, options)
+    if options.time_limit is not None:
+        left = max(options.time_limit - (time.perf_counter() - t0), MIN_LOWER_TIME)
+        if lower_options.time_limit is None or lower_options.time_limit > left:
+            lower_options = replace(lower_options, time_limit=left)
     lower = static_limit_load(disc, lower_options)
     notes = [f"upper: {upper.message}", f"lower: {lower.message}"]
     return LimitBracket(F_lower=float(lower.F_lower), F_upper=upper.F_upper,

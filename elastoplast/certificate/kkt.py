@@ -153,14 +153,19 @@ def abs_product(B, x: np.ndarray) -> np.ndarray:
 
 
 def shaped(a, shape: tuple[int, ...], name: str) -> np.ndarray:
-    """``a`` as a float array of ``shape`` (the same number of entries in any layout), or
-    an :class:`~elastoplast.errors.InputError` naming ``name`` and the shape expected:
-    for anything that is not numbers (strings, ``None``, objects) and for a wrong size.
+    """``a`` as a float array of ``shape``, given in that shape or flat (its entries in
+    row-major order), or an :class:`~elastoplast.errors.InputError` naming ``name`` and the
+    shape expected: for anything that is not numbers (strings, ``None``, objects), for a
+    wrong size, and for another layout of the right size (a transposed ``u``, shape
+    (d, n_nodes), would be read with its components interleaved: refused, never reshaped).
     NaN and infinite entries pass: the certificate of such a candidate is NaN, never small."""
     size = int(np.prod(shape))
     arr = check_array(name, a)
     if arr.size != size:
         raise InputError(name, f"expected {size} values {shape}, got {arr.size} {arr.shape}")
+    if arr.shape != tuple(shape) and arr.ndim != 1:
+        raise InputError(name, f"expected shape {shape} (or {size} values flat), got {arr.shape}: another layout is "
+                               "not reshaped (a transposed array would be read with its entries interleaved)")
     return arr.reshape(shape)
 
 

@@ -269,6 +269,10 @@ def _limit(args: argparse.Namespace) -> int:
     from elastoplast.io.output import json_text, staged_output
 
     path, data, _, _ = _setup(args, solver=False)  # the limit load has no [solver]: its programs are Clarabel's
+    refuse_path(data, "limit")
+    if "solver" in data:
+        print("note: solver: the limit load's two programs are Clarabel's (--order, --time-limit set them); the "
+              "[solver] table is not used", file=sys.stderr)
     warnings.filterwarnings("ignore", message=r".*hardening = 0 is perfect plasticity")  # what 'limit' is for
     given = {k: v for k, v in (("order", args.order), ("time_limit", args.time_limit)) if v is not None}
     try:

@@ -55,8 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", nargs="?", help="problem TOML file (default: the built-in 3D sphere on a block)")
     p.add_argument("--method", help=f"solver, one of {sorted(METHODS)} (default: the file's [solver] method, else conic)")
     p.add_argument("--out", default="results", help="output folder, new or holding an earlier output (default: results)")
-    _add_solver_arguments(p, time_help="wall-clock limit in seconds of the whole run: the solve, or every step of a "
-                                       "loading path together (the path stops with status time_limit once spent)")
+    _add_solver_arguments(p, time_help="wall-clock limit in seconds of the whole run: the solve, every step of a "
+                                       "loading path together (the path stops with status time_limit once spent), "
+                                       "or every solve of a depth control's force search together")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
     p = sub.add_parser("bounds", help="certified bounds on the continuous problem: energy, stress error and U")
@@ -74,7 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", help="problem TOML file with hardening = 0")
     p.add_argument("--out", default="limit", help="output folder (default: limit)")
     p.add_argument("--order", type=int, help="degree of the kinematic velocity field, 1 or 2 (default: 2)")
-    p.add_argument("--time-limit", type=float, help="wall-clock limit of each of the two programs, seconds")
+    p.add_argument("--time-limit", type=float, help="wall-clock budget in seconds of the whole bracket: the kinematic "
+                                                    "program, then the static one with what is left (Clarabel checks it "
+                                                    "between iterations; a bound it stops is not certified)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
     p = sub.add_parser("adapt", help="refine where the certified gap is until the relative gap is at most --rtol")
@@ -94,7 +97,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="adapt", help="output folder (default: adapt)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
-    p = sub.add_parser("campaign", help="run a sweep of problems on Dask into a resumable store of reference solutions")
+    p = sub.add_parser("campaign", help="run a sweep of problems on Dask into a resumable store of reference solutions",
+                       description="Run a sweep of problems on Dask into a resumable store of reference solutions. "
+                                   "Time limits: each case's solve is bounded by the campaign file's [solver] "
+                                   "time_limit in seconds (a loading path's steps together; also a sweep axis, "
+                                   "\"solver.time_limit\"), the case then stored with status time_limit; the "
+                                   "campaign as a whole has no limit (interrupt it and run it again: it resumes).")
     p.add_argument("campaign", help="campaign TOML file: a base problem and [sweep] axes")
     p.add_argument("--out", required=True, help="store directory (created; re-running skips the cases it holds)")
     _add_dask_arguments(p)

@@ -36,7 +36,7 @@ def suite_command(args: argparse.Namespace, options: dict[str, Any]) -> int:
     except InputError as exc:
         if exc.field in _FLAGS:
             raise InputError(_FLAGS[exc.field], exc.message) from None
-        if exc.field.startswith("--"):
+        if exc.field.startswith("--") or ".toml: " in exc.field:  # a flag, or a problem file of the suite
             raise
         raise InputError(f"--option {exc.field}", exc.message) from None
     print(profile_markdown(record), end="")

@@ -217,8 +217,12 @@ class Discretization:
     def with_force(self, force: float) -> "Discretization":
         """The same operators for another load (nothing is rebuilt: the mesh, its facet
         groups and the element geometry are the same, so :attr:`shared` is); ``force``
-        is checked as the problem file's ``load.force`` (:meth:`Problem.with_force`)."""
-        return replace(self, problem=self.problem.with_force(force))
+        is checked as the problem file's ``load.force`` (:meth:`Problem.with_force`) and
+        against the magnitudes no solver can scale as :func:`discretize` checks it
+        (:func:`check_scales`: a force of 1e-300 is refused here as in a problem file)."""
+        out = replace(self, problem=self.problem.with_force(force))
+        check_scales(out)
+        return out
 
 
 class SharedOperators:
@@ -529,6 +533,22 @@ def check_scales(disc: Discretization) -> None:
         raise InputError("load.force", f"force = {disc.force:g} gives a mean contact pressure F / |Gamma_0| = "
                                        f"{u.stress:.3g}, {strain:.3g} times E (and an obstacle {psi:.3g} times the "
                                        f"displacement scale): beyond [{lo:g}, {hi:g}], which no solver can scale")
+    if disc.problem.path is not None and disc.state is None:
+        check_path_scales(disc, disc.problem.path, "load.path")
+
+
+def check_path_scales(disc: Discretization, forces, field: str) -> None:
+    """Refuse, before step 1, a loading path whose smallest force is a load no solver can
+    scale (:func:`check_scales` checks ``disc.force``, a path's largest): a step at 1e-300
+    would be refused when the path reaches it, or run into overflow."""
+    lo = SCALE_RANGE[0]
+    area = disc.contact_area.sum()
+    least = min(forces)
+    strain = least / area / disc.material.E if area > 0 else 1.0
+    if not lo <= strain:
+        raise InputError(field, f"entry {list(forces).index(least) + 1}, {least:g}, gives a mean contact pressure "
+                                f"{strain:.3g} times E: below {lo:g}, which no solver can scale (end an unloading "
+                                "at a small force, e.g. 1e-6 of the largest)")
 
 
 #: largest obstacle height, in displacement units, the solvers see (see :func:`nondimensionalize`)

@@ -12,10 +12,13 @@ Everything here works on arrays shaped ``(n_elements, n_components)``.
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
+from elastoplast.errors import InputError, short_repr
 from elastoplast.limits import blocks
 
 SQRT_3_2 = np.sqrt(1.5)
@@ -77,6 +80,23 @@ class Material:
     nu: float
     yield_stress: float
     hardening: float
+
+    def __post_init__(self) -> None:
+        """The admitted ranges (docs/problem-files.md), named ``material.<key>``, for every
+        Material: one made by ``dataclasses.replace`` with nu = 0.7 (a negative bulk
+        modulus) was solved. ``yield_stress`` may be infinite (an elastic body)."""
+        for key in ("E", "nu", "yield_stress", "hardening"):
+            value = getattr(self, key)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or math.isnan(value):
+                raise InputError(f"material.{key}", f"must be a number, got {short_repr(value)}")
+        if not 0 < self.E < math.inf:
+            raise InputError("material.E", f"must be a finite number > 0, got {self.E!r}")
+        if not -1.0 < self.nu < 0.5:
+            raise InputError("material.nu", f"must lie in (-1, 0.5), got {self.nu!r}")
+        if not self.yield_stress > 0:
+            raise InputError("material.yield_stress", f"must be > 0, got {self.yield_stress!r}")
+        if not 0 <= self.hardening < math.inf:
+            raise InputError("material.hardening", f"must be a finite number >= 0, got {self.hardening!r}")
 
     @property
     def mu(self) -> float:

@@ -59,17 +59,39 @@ def path_solution(result: PathResult) -> Solution:
                    timings={"total": float(result.time_s)}, history=[])
 
 
-def unloading_slope(result: PathResult) -> dict[str, Any] | None:
-    """The initial elastic unloading slope: the secant ``S = (F_peak - F_1) /
-    (U_peak - U_1)`` of the path's first unloading step, from the peak before it; None
-    when the path never unloads, or when that step did not converge or moved U by nothing."""
+#: a slope read off an unloading needs its first step to move U by this many times the
+#: accuracy the answers' certificates give U (below it, the slope is their round-off)
+SLOPE_RESOLUTION = 1e3
+
+
+def first_unloading_step(result: PathResult) -> tuple[PathStep, PathStep] | None:
+    """``(peak, first)``: the path's first unloading step and the step before it, when
+    both converged and U moves between them by more than ``SLOPE_RESOLUTION`` times its
+    accuracy (the worst KKT residual of the two, at least machine epsilon, times the
+    displacement scale max(|U|, max|u|) of the peak); else None (also when the path never
+    unloads). Measured: unloading 3000 to 2999.9999999 moves U by 3e-11 of itself, and
+    the secant's slope was 2.07e5 by newton, 3.08e5 by conic."""
     first = next((s for s in result.steps if s.unloading), None)
     if first is None:
         return None
     peak = result.steps[first.index - 2]
-    dU = peak.U - first.U
-    if not (peak.converged and first.converged) or not dU != 0.0:
+    if not (peak.converged and first.converged):
         return None
+    scale = max(abs(peak.U), float(np.abs(peak.u).max(initial=0.0)))
+    accuracy = max(peak.solution.kkt.worst, first.solution.kkt.worst, float(np.finfo(float).eps)) * scale
+    return (peak, first) if abs(peak.U - first.U) > SLOPE_RESOLUTION * accuracy else None
+
+
+def unloading_slope(result: PathResult) -> dict[str, Any] | None:
+    """The initial elastic unloading slope: the secant ``S = (F_peak - F_1) /
+    (U_peak - U_1)`` of the path's first unloading step, from the peak before it; None
+    when the path never unloads, or when that step did not converge or moved U by no
+    more than its accuracy resolves (:func:`first_unloading_step`)."""
+    span = first_unloading_step(result)
+    if span is None:
+        return None
+    peak, first = span
+    dU = peak.U - first.U
     return {"S": (peak.force - first.force) / dU, "step": first.index, "F_peak": peak.force, "U_peak": peak.U,
             "F": first.force, "U": first.U, "reverse_yield": first.reverse_yield}
 
@@ -99,11 +121,14 @@ def path_oliver_pharr(disc: Discretization, result: PathResult) -> dict[str, Any
     (:func:`~elastoplast.certificate.oliver_pharr.oliver_pharr`) from the converged steps'
     (U, F), F the whole indenter force (the model's over its symmetry share,
     ``force_share``); None when
-    the path never unloads, in plane strain (no projected area), or for an obstacle
+    the path never unloads (or its first unloading step is not resolved:
+    :func:`first_unloading_step`), in plane strain (no projected area), or for an obstacle
     other than a sphere, paraboloid or cone."""
     obstacle = disc.problem.obstacle
     axisymmetric = disc.problem.axisymmetric
     if (disc.dim == 2 and not axisymmetric) or obstacle.shape not in SHAPES:
+        return None
+    if first_unloading_step(result) is None:  # never unloads, or by less than U resolves
         return None
     steps = [s for s in result.steps if s.converged]
     share = 1.0 if axisymmetric else symmetry_share(disc)
@@ -122,10 +147,13 @@ def yielded(step: PathStep, disc: Discretization, tol: float) -> np.ndarray:
 
 def step_entry(disc: Discretization, step: PathStep) -> dict[str, Any]:
     """A step's entry of ``summary.json``'s ``"path"``: :meth:`PathStep.summary` and
-    the contact radius (half-width in 2D) and largest contact pressure after the step."""
+    the contact radius (half-width in 2D), the number of active contact nodes (the relative
+    threshold of a plain solve's summary, ``ACTIVE_FORCE_SHARE``) and largest contact
+    pressure after the step."""
     sol = step.solution
     finite = sol.contact_pressure[np.isfinite(sol.contact_pressure)]
     return {**step.summary(disc), "contact_radius": contact_radius(disc, sol.active, sol.contact_pressure),
+            "n_active_contact_nodes": int(np.sum(sol.active)),
             "max_contact_pressure": float(finite.max()) if finite.size else float("nan")}
 
 

@@ -330,6 +330,17 @@ class Store:
             raise InputError("store", f"{shown(self.path)} is damaged: cannot read {what} "
                                       f"({type(exc).__name__}: {exc})") from None
 
+    @contextmanager
+    def _writable(self) -> Iterator[None]:
+        """A write the file system refuses (a full disk, a file-size limit: sqlite's "disk
+        I/O error"; a read-only folder) is the place written to, ``out``, not a damaged store."""
+        try:
+            yield
+        except sqlite3.OperationalError as exc:
+            if "disk" not in str(exc) and "readonly" not in str(exc):
+                raise
+            raise InputError("out", f"cannot write the store {shown(self.path)}: {exc}") from None
+
     # -- reading ----------------------------------------------------------------
 
     def exists(self) -> bool:
@@ -451,7 +462,7 @@ class Store:
             for tmp in (self.path / "cases").glob(".tmp-*"):
                 shutil.rmtree(tmp, ignore_errors=True)
             cols = ", ".join(f'"{n}" {t}' for n, t in _COLUMNS)
-            with self._readable(self.index_path.name), closing(self._connect()) as con, con:
+            with self._readable(self.index_path.name), self._writable(), closing(self._connect()) as con, con:
                 con.execute(f"CREATE TABLE IF NOT EXISTS cases ({cols})")
                 have = {r["name"] for r in con.execute("PRAGMA table_info(cases)")}
                 for n, t in _COLUMNS:  # columns a newer version added (e.g. a new KKT residual)

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from elastoplast.errors import InputError
+from elastoplast.errors import InputError, short_repr
 from elastoplast.mesh.topology import element_facets, local_edges, locate_rows, outward_facet_normals, unique_rows
 
 # ----------------------------------------------------------------------------
@@ -257,3 +257,13 @@ def reorient(points: np.ndarray, cells: np.ndarray, field: str) -> np.ndarray:
     warnings.warn(f"{int(negative.sum())} of {cells.shape[0]} elements were listed with the opposite orientation "
                   "(as a mirrored part is): reoriented")
     return oriented
+
+
+def check_axisymmetric(value, mesh) -> bool:
+    """``mesh.axisymmetric``: a boolean, true only for a 2D mesh (the meridian plane)."""
+    if not isinstance(value, bool):
+        raise InputError("mesh.axisymmetric", f"must be true or false, got {short_repr(value)}")
+    if value and mesh.dim != 2:
+        raise InputError("mesh.axisymmetric", "an axisymmetric model is a 2D mesh of the meridian plane (r, z); "
+                                              f"this mesh is {mesh.dim}D")
+    return value

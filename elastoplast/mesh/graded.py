@@ -35,6 +35,17 @@ def symmetry_planes(dim: int) -> dict[str, list[str]]:
     return {"x": ["xmin"], "y": ["ymin"]} if dim == 3 else {"x": ["xmin"]}
 
 
+def check_centre_on_axis(center: Sequence[float], field: str = "obstacle.center") -> None:
+    """The graded block with its default boundary (:func:`symmetry_planes`) is the half
+    (quarter) of a body symmetric about the indenter's axis x = 0 (y = 0): an obstacle
+    centred elsewhere would be mirrored by those planes into another problem than the one
+    given (it was solved so, silently). Refused naming ``field``."""
+    if any(float(c) != 0.0 for c in center):
+        raise InputError(field, f"is {list(center)}: the graded block with its default boundary is the symmetric half "
+                                "(3D: quarter) about the indenter's axis x = 0 (y = 0), so the obstacle is centred on "
+                                "it (leave center out), or give a [boundary] table for another model")
+
+
 def check_graded_arguments(size: Any, contact_radius: Any, h_contact: Any, h_far: Any) -> tuple:
     """``(size, contact_radius, h_contact, h_far)`` checked: each refusal an
     :class:`InputError` naming ``mesh.<argument>``."""

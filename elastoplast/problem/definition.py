@@ -24,7 +24,8 @@ from elastoplast.limits import as_path, read_bytes
 from elastoplast.errors import InputError
 from elastoplast.fem.material import Material
 from elastoplast.mesh.base import Mesh, read_mesh, structured_mesh
-from elastoplast.mesh.graded import graded_mesh, symmetry_planes
+from elastoplast.mesh.checks import check_axisymmetric
+from elastoplast.mesh.graded import check_centre_on_axis, graded_mesh, symmetry_planes
 from elastoplast.errors import finite_float, short_repr
 from elastoplast.problem.load import check_depths, check_forces, depth_force_guess
 from elastoplast.problem.expressions import SAFE_FUNCTIONS, compile_expression
@@ -122,6 +123,13 @@ class Obstacle:
     half_angle: float | None = None
     axisymmetric: bool = False
 
+    def __post_init__(self) -> None:  # make_obstacle's ranges, also for dataclasses.replace
+        r, a = finite_float(self.radius), finite_float(self.half_angle)
+        if self.shape in ("sphere", "cylinder", "paraboloid") and not (r is not None and r > 0):
+            raise InputError("obstacle.radius", f"must be a finite number > 0, got {short_repr(self.radius)}")
+        if self.shape == "cone" and not (a is not None and 0.0 < a < 90.0):
+            raise InputError("obstacle.half_angle", f"must lie in (0, 90) degrees, got {short_repr(self.half_angle)}")
+
     def psi(self, xp: np.ndarray, field: str = "obstacle") -> np.ndarray:
         """Evaluate psi at in-plane points ``xp`` (n, d-1); refuses points outside its domain."""
         with np.errstate(all="ignore"):  # overflow to inf is refused by _check_psi
@@ -183,7 +191,11 @@ class Problem:
     displacement: float | None = None
     displacement_path: tuple[float, ...] | None = None
 
-    def __post_init__(self) -> None:
+    def __post_init__(self) -> None:  # [load] checked also for dataclasses.replace (a force "1" reached numpy)
+        if not _finite_number(self.force, "load.force") > 0:
+            raise InputError("load.force", f"must be > 0, got {self.force!r}")
+        if self.displacement is not None:
+            _finite_number(self.displacement, "load.displacement")
         if self.path is not None:
             object.__setattr__(self, "path", check_forces(self.path, "load.path"))
         check_axisymmetric(self.axisymmetric, self.mesh)
@@ -220,16 +232,6 @@ class Problem:
 
         path = check_forces(forces, "load.path")
         return replace(self, force=max(path), path=path, displacement=None, displacement_path=None)
-
-
-def check_axisymmetric(value: Any, mesh: Mesh) -> bool:
-    """``mesh.axisymmetric``: a boolean, true only for a 2D mesh (the meridian plane)."""
-    if not isinstance(value, bool):
-        raise InputError("mesh.axisymmetric", f"must be true or false, got {short_repr(value)}")
-    if value and mesh.dim != 2:
-        raise InputError("mesh.axisymmetric", "an axisymmetric model is a 2D mesh of the meridian plane (r, z); "
-                                              f"this mesh is {mesh.dim}D")
-    return value
 
 
 # ----------------------------------------------------------------------------
@@ -280,14 +282,7 @@ def make_material(E: float, nu: float, yield_stress: float, hardening: float, *,
     argument must be a finite number (not a string, a boolean, None or a list)."""
     E, nu, yield_stress, hardening = (_finite_number(val, f"{prefix}.{key}") for key, val in (
         ("E", E), ("nu", nu), ("yield_stress", yield_stress), ("hardening", hardening)))
-    if not E > 0:
-        raise InputError(f"{prefix}.E", f"must be > 0, got {E!r}")
-    if not -1.0 < nu < 0.5:
-        raise InputError(f"{prefix}.nu", f"must lie in (-1, 0.5), got {nu!r}")
-    if not yield_stress > 0:
-        raise InputError(f"{prefix}.yield_stress", f"must be > 0, got {yield_stress!r}")
-    if not hardening >= 0:
-        raise InputError(f"{prefix}.hardening", f"must be >= 0, got {hardening!r}")
+    material = Material(E, nu, yield_stress, hardening)  # its ranges checked there, named material.<key>
     if nu >= 0.49:
         warnings.warn(f"{prefix}.nu = {nu:.15g} is nearly incompressible (bulk / shear modulus "
                       f"{2 * (1 + nu) / (3 * (1 - 2 * nu)):.3g}): P1 elements lock elastically and the solvers lose "
@@ -301,7 +296,7 @@ def make_material(E: float, nu: float, yield_stress: float, hardening: float, *,
             "the limit load on any mesh",
             stacklevel=2,
         )
-    return Material(E, nu, yield_stress, hardening)
+    return material
 
 
 def make_obstacle(section: Mapping, dim: int, prefix: str = "obstacle", axisymmetric: bool = False) -> Obstacle:
@@ -382,11 +377,9 @@ def make_graded_mesh(section: Mapping, prefix: str = "mesh") -> Mesh:
 
 
 def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh", axisymmetric: bool = False) -> Mesh:
-    """Read ``file`` or run the ``generator`` ('rectangle' 2D, 'box' 3D); the generator's
-    settings are checked by :func:`~elastoplast.mesh.base.structured_mesh` itself (fields
-    ``mesh.<key>``), once for this table and for Python callers. For an axisymmetric
-    model the generated rectangle starts on the axis (``origin`` [0, 0]) with its
-    contact zone centred there (``contact_center`` [0]) unless they are given."""
+    """Read ``file`` or run the ``generator``, whose settings :func:`~elastoplast.mesh.base.structured_mesh`
+    checks (fields ``mesh.<key>``). An axisymmetric model's rectangle starts on the axis
+    (``origin`` [0, 0] unless given), its contact zone a disc about it (``contact_center`` [0] or none)."""
     _only(section, {"file", "generator", "size", "divisions", "origin", "grading", "contact_radius", "contact_center",
                     "pattern", "axisymmetric", "h_contact", "h_far"}, prefix)
     if ("file" in section) == ("generator" in section):
@@ -417,7 +410,10 @@ def make_mesh(section: Mapping, base_dir: Path, prefix: str = "mesh", axisymmetr
     origin, centre = section.get("origin"), section.get("contact_center")
     if axisymmetric and dim == 2:
         origin = [0.0, 0.0] if origin is None else origin
-        centre = [0.0] if centre is None else centre
+        if centre is not None and not (isinstance(centre, list) and centre in ([0], [0.0]) and centre[0] is not False):
+            raise InputError(f"{prefix}.contact_center", "in an axisymmetric model the contact zone is a disc about "
+                                                         f"the axis r = 0: leave it out, got {short_repr(centre)}")
+        centre = [0.0]
     return structured_mesh(size, section["divisions"], section["contact_radius"], origin=origin,
                            contact_center=centre, grading=section.get("grading", 1.0),
                            pattern=section.get("pattern", "diagonal"))
@@ -513,13 +509,11 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     and read by :func:`elastoplast.solvers.registry.solver_settings`.
     """
     _only(data, SECTIONS, "problem")
-    if base_dir is None:
-        base_dir = "."
+    base_dir = "." if base_dir is None else base_dir
     if not isinstance(base_dir, (str, os.PathLike)):
         raise InputError("base_dir", f"must be the folder mesh files are relative to (a path), got {short_repr(base_dir)}")
-    for name in ("mesh", "material", "obstacle", "load"):
-        if name not in data:
-            raise InputError(name, "section is required")
+    for name in (n for n in ("mesh", "material", "obstacle", "load") if n not in data):
+        raise InputError(name, "section is required")
     axisymmetric = data["mesh"].get("axisymmetric", False) if isinstance(data["mesh"], Mapping) else False
     mesh = make_mesh(data["mesh"], Path(base_dir), axisymmetric=axisymmetric is True)
     axisymmetric = check_axisymmetric(axisymmetric, mesh)
@@ -530,12 +524,14 @@ def problem_from_dict(data: Mapping, base_dir: str | Path | None = ".") -> Probl
     if "generator" in data["mesh"]:
         check_generated_contact_zone(mesh, boundary)
     obstacle = make_obstacle(data["obstacle"], mesh.dim, axisymmetric=axisymmetric)
+    if data["mesh"].get("generator") == "graded" and "boundary" not in data:
+        check_centre_on_axis(obstacle.center)
     load = _only(data["load"], {"force", "path", "displacement", "displacement_path"}, "load")
     given = [k for k in ("force", "path", "displacement", "displacement_path") if k in load]
     if len(given) > 1:
-        raise InputError("load", f"give exactly one of 'force' (Hencky's problem), 'path' (a loading "
-                                             "path of Prandtl-Reuss steps), 'displacement' (depth control) or "
-                                             f"'displacement_path' (a depth path), not {' and '.join(given)}")
+        raise InputError("load", "give exactly one of 'force' (Hencky's problem), 'path' (a loading path of Prandtl-"
+                                 "Reuss steps), 'displacement' (depth control) or 'displacement_path' (a depth "
+                                 f"path), not {' and '.join(given)}")
     if "displacement" in load:
         delta = load["displacement"]
         if isinstance(delta, bool) or not isinstance(delta, (int, float)) or not np.isfinite(delta):

@@ -58,8 +58,10 @@ def depth_force_guess(material: Material, mesh: Mesh, depth: float, axisymmetric
     """A first force for the root search of depth control (never a result): E* |delta|
     times the geometric mean of |delta| and the mesh's width to the power d - 2 (a
     force per unit length in plane strain, a force in 3D and axisymmetric models, d = 3
-    for those), with |delta| a millionth of the width when delta = 0."""
+    for those), with |delta| at least a millionth of the width (a smaller guess, down to
+    1e-300, would be refused as a load no solver can scale, naming ``load.force``, which
+    the user did not give; the search narrows from there)."""
     e_star = material.E / (1.0 - material.nu ** 2)
     width = float(np.ptp(mesh.points[:, 0]))
-    length = abs(depth) if depth != 0 else 1e-6 * width
+    length = max(abs(depth), 1e-6 * width)
     return e_star * length * float(np.sqrt(length * width)) ** ((3 if axisymmetric else mesh.dim) - 2)

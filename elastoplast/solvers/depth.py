@@ -21,12 +21,14 @@ the obstacle's origin is).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from elastoplast.certificate.solution import Solution
+from elastoplast.certificate.kkt import ROUND_OFF
+from elastoplast.certificate.solution import Solution, Status
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.discretize import Discretization
 from elastoplast.options import SolverOptions
@@ -82,6 +84,31 @@ class DepthSolution:
         return out
 
 
+#: the time limit of a solve started once a search's budget is spent (it stops after one iteration)
+SPENT = 1e-9
+
+
+def time_left(opts: SolverOptions):
+    """``opts`` with ``time_limit`` what is left, from now, of its own: a depth search makes
+    many solves and ``time_limit`` bounds them together (a solve started when nothing is
+    left gets ``SPENT`` and ends with status ``time_limit``, which ends the search)."""
+    if opts.time_limit is None:
+        return lambda: opts
+    end = time.perf_counter() + opts.time_limit
+    return lambda: replace(opts, time_limit=max(end - time.perf_counter(), SPENT))
+
+
+def floor_share(tol: float) -> float:
+    """The share of the largest force so far at which a depth path's step looks for
+    lift-off: ``FLOOR_SHARE``, or more where the method's ``tol`` cannot be certified
+    there. After loading, the state's stresses (of the size of the largest force) enter
+    every contact force computed, which then carries their round-off, ``ROUND_OFF`` times
+    that size; the force balance is relative to the step's F, so F must be at least
+    ``ROUND_OFF / tol`` of it (newton's tol 1e-10: 1.4e-4; measured on a cylinder, a
+    step at 1e-6 stalled at a force-balance residual of 7e-10)."""
+    return max(FLOOR_SHARE, ROUND_OFF / tol)
+
+
 def check_displacement(delta: Any, field_name: str = "load.displacement") -> float:
     """``delta`` as a finite float, or an :class:`InputError` naming ``field_name``.
     Any sign is allowed (a delta at or below the unloaded gap is a lift-off)."""
@@ -116,11 +143,23 @@ def solve_depth(disc: Discretization, delta: float, method: str = DEFAULT_METHOD
     touch = float(np.min(disc.psi))
     if delta - touch <= 0:
         return DepthSolution(delta, 0.0, None, 0.0, True, delta - touch)
-    first = float(force_guess if force_guess is not None else disc.force)
-    if not first > 0:
-        raise InputError("force_guess", f"must be > 0, got {force_guess!r}")
-    return find_force(lambda f: solve(disc.with_force(f), method, opts), delta, 0.0, touch, first,
-                      depth_tol)
+    first = disc.force if force_guess is None else check_force_guess(disc, force_guess)
+    left = time_left(opts)
+    return find_force(lambda f: solve(disc.with_force(f), method, left()), delta, 0.0, touch, first, depth_tol)
+
+
+def check_force_guess(disc: Discretization, force_guess: Any) -> float:
+    """``force_guess`` as a float: a finite number > 0 (not a string, not a boolean) that
+    ``disc.with_force`` takes (within the magnitudes a solver can scale), else an
+    :class:`InputError` naming ``force_guess`` (not the problem's ``load.force``)."""
+    if isinstance(force_guess, (bool, np.bool_)) or not isinstance(force_guess, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(force_guess) or not force_guess > 0:
+        raise InputError("force_guess", f"must be a finite number > 0, got {force_guess!r}")
+    try:
+        disc.with_force(float(force_guess))
+    except InputError as exc:
+        raise InputError("force_guess", exc.message) from None
+    return float(force_guess)
 
 
 def check_depth_tol(depth_tol: Any) -> None:
@@ -139,20 +178,45 @@ def find_force(at, delta: float, lo_f: float, lo_u: float, first: float, depth_t
     forces: list[float] = []
     depths: list[float] = []
 
+    failed: list[str] = []  # why the last solve that did not converge did not: the search's own limit
+
     def solve_at(force: float) -> Solution:
         if len(forces) >= MAX_EVALUATIONS:
+            why = f"; the forces above it fail: {failed[-1]}" if failed else ""
             raise InputError("load.displacement", f"no force found for U = {delta:g} in {MAX_EVALUATIONS} solves "
-                                                  f"(last F = {forces[-1]:g}, U = {depths[-1]:g})")
+                                                  f"(last F = {forces[-1]:g}, U = {depths[-1]:g}{why})")
         try:
             sol = at(force)
         except InputError as exc:  # a force the checks refuse (above the limit load, too large a pressure)
             if exc.field != "load.force":
                 raise
             sol = None
+            failed.append(f"F = {force:g} refused ({exc.message})")
+        if sol is not None and not sol.converged:
+            failed.append(f"F = {force:g} {sol.status.value} ({sol.message})")
         forces.append(force)
         depths.append(float("nan") if sol is None else float(sol.U))
+        if sol is not None and sol.status is Status.TIME_LIMIT:
+            raise _Spent(DepthSolution(delta, force, sol, abs(float(sol.U) - delta) / depth, False, depth,
+                                       tuple(forces), tuple(depths)))
         return sol
 
+    try:
+        return _search(solve_at, delta, lo_f, lo_u, first, depth_tol, lo_sol, forces, depths)
+    except _Spent as spent:  # the time limit: the last solve, not converged, is the answer
+        return spent.answer
+
+
+class _Spent(Exception):
+    def __init__(self, answer: DepthSolution):
+        super().__init__("time limit")
+        self.answer = answer
+
+
+def _search(solve_at, delta: float, lo_f: float, lo_u: float, first: float, depth_tol: float,
+            lo_sol: Solution | None, forces: list[float], depths: list[float]) -> DepthSolution:
+    """The bracket and regula falsi of :func:`find_force`, each solve by ``solve_at``."""
+    depth = delta - lo_u
     lo_g = lo_u - delta
     hi_f = max(first, 2.0 * lo_f)
     sol = solve_at(hi_f)
@@ -200,7 +264,7 @@ def solve_depth_path(disc: Discretization, depths: Any, method: str = "conic", *
     prescribed displacement, each step's force found as :func:`solve_depth` finds it
     (the first guess is the last step's force). A step whose depth the body no longer
     reaches (unloading past the residual imprint) is a lift-off: it is solved at
-    ``FLOOR_SHARE`` times the largest force so far (F = 0 to that share; the residual
+    :func:`floor_share` times the largest force so far (F = 0 to that share; the residual
     imprint is that step's U). Returns the path (``forces`` of its steps are the found
     forces; ``result.forces`` holds the prescribed depths) and each step's search.
     """
@@ -218,8 +282,10 @@ def solve_depth_path(disc: Discretization, depths: Any, method: str = "conic", *
 
     def step_solve(make_step, delta: float, prev: PathStep | None, before: PathStep | None,
                    step_opts: SolverOptions):
+        left = time_left(step_opts)
+
         def at(f: float) -> Solution:
-            return solve(make_step(f), m_run.name, step_opts)
+            return solve(make_step(f), m_run.name, left())
 
         if prev is None:
             touch = float(np.min(disc.psi))
@@ -231,7 +297,7 @@ def solve_depth_path(disc: Discretization, depths: Any, method: str = "conic", *
             else:
                 search = find_force(at, delta, 0.0, touch, first, depth_tol)
         else:
-            floor = FLOOR_SHARE * max(largest[0], prev.force)
+            floor = floor_share(step_opts.tol) * max(largest[0], prev.force)
             low = at(floor)
             if not low.converged or low.U >= delta:
                 search = DepthSolution(delta, floor, low, 0.0, True, delta - float(low.U), (floor,), (float(low.U),))

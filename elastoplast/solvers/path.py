@@ -24,7 +24,7 @@ import numpy as np
 
 from elastoplast.certificate.solution import Solution, Status, small_strain_note
 from elastoplast.errors import InputError, expect
-from elastoplast.fem.discretize import Discretization
+from elastoplast.fem.discretize import Discretization, check_path_scales
 from elastoplast.fem.material import Prestate, return_mapping
 from elastoplast.options import SolverOptions
 from elastoplast.problem.load import check_forces
@@ -197,6 +197,7 @@ def solve_path(disc: Discretization, forces: Sequence[float], method: str = "con
     if disc.state is not None:
         raise InputError("disc", "is already a step of a path: give the problem's discretisation (ep.discretize)")
     forces = check_path(forces, "forces")
+    check_path_scales(disc, forces, "forces")
     m_run = get_method(method)
     name = m_run.name
     opts = given_options(method, options, values)

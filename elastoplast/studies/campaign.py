@@ -350,7 +350,7 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None) -> I
     n = n_workers or machine_cores()
     # loopback only; no dashboard, and the scheduler's HTTP routes on a free port
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
-                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}, silence_logs=logging.ERROR) as cluster, \
+                      scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}, silence_logs=logging.CRITICAL) as cluster, \
             Client(cluster) as client:
         yield client
 
@@ -470,14 +470,29 @@ def _failed(out: Mapping[str, Any]) -> bool:
     return out["status"] != "converged" if "status" in out else not out["solution"].converged
 
 
+def recording_warnings(fn, *args) -> dict[str, Any]:
+    """The worker side of :func:`gather_results`: ``fn(*args)`` with its warnings recorded
+    instead of printed (a worker process prints them raw on the terminal, numpy's once per
+    array operation); the result gains ``"warnings"``, each distinct ``(category, text)``
+    once, which :func:`gather_results` warns again in the calling process."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = fn(*args)
+    said = dict.fromkeys((w.category.__name__, str(w.message)) for w in caught)
+    return {**out, "warnings": list(said)}
+
+
 def gather_results(client: Any, tasks: Mapping[str, tuple], desc: str, progress: bool) -> Iterator[tuple[str, dict]]:
     """Warm the workers up, submit ``{key: (fn, spec, *args)}`` and yield
     ``(key, result)`` as tasks finish; a task whose worker died yields an error
     result instead."""
     from distributed import as_completed
 
-    client.run(warm_up, sorted({task[1]["method"] for task in tasks.values()}))
-    futures = {client.submit(*task, key=key, pure=False): key for key, task in tasks.items()}
+    try:
+        client.run(warm_up, sorted({task[1]["method"] for task in tasks.values()}))
+    except Exception:  # a worker lost while warming up (a plug-in that ends its process): the cases say so
+        pass
+    futures = {client.submit(recording_warnings, *task, key=key, pure=False): key for key, task in tasks.items()}
     failed = 0
     with _progress(len(futures), desc, progress) as bar:
         for fut in as_completed(futures):
@@ -486,6 +501,8 @@ def gather_results(client: Any, tasks: Mapping[str, tuple], desc: str, progress:
             except Exception as exc:  # a lost worker, a cancelled task
                 out = {"error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
             fut.release()
+            for category, text in out.pop("warnings", ()):  # said here, where the command's rules apply
+                warnings.warn(text, RuntimeWarning if category == "RuntimeWarning" else UserWarning, stacklevel=2)
             failed += _failed(out)
             bar.update(1)
             bar.set_postfix(failed=failed)
@@ -522,10 +539,19 @@ def run_campaign(campaign: Campaign, out: str | Path, *, scheduler: str | None =
         created = not store.path.exists()
     try:
         return _run(campaign, store, scheduler, client, n_workers, progress, retry_failed)
-    except InputError:  # e.g. no scheduler at the address: leave no empty store behind
-        if created and not store.rows() and {p.name for p in store.path.iterdir()} <= STORE_FILES:
+    except InputError:  # e.g. no scheduler at the address, a full disk: leave no empty store behind
+        if created and _holds_nothing(store) and {p.name for p in store.path.iterdir()} <= STORE_FILES:
             shutil.rmtree(store.path, ignore_errors=True)
         raise
+
+
+def _holds_nothing(store: Store) -> bool:
+    """No case in a store this run created (an index it could not write holds none: a full
+    disk's error, not the index's, is the one to report)."""
+    try:
+        return not store.rows()
+    except InputError:
+        return True
 
 
 def _run(campaign: Campaign, store: Store, scheduler: str | None, client: Any, n_workers: int | None,

@@ -14,7 +14,7 @@ import numpy as np
 
 from elastoplast.studies.campaign import cluster_client, gather_results, check_cluster
 from elastoplast.plots.figures import plot_comparison
-from elastoplast.errors import InputError
+from elastoplast.errors import InputError, figure
 from elastoplast.io.output import check_output_dir, json_text, staged_output
 from elastoplast.io.store import ERROR, Store, atomic_write, rebuild_problem, resolve
 from elastoplast.solvers.registry import solver_settings
@@ -142,11 +142,11 @@ def _method_runs(s: Mapping[str, Any]) -> str:
 
 
 def _g(x: Any) -> str:
-    return "–" if x is None else f"{x:.4g}"
+    return "–" if x is None else figure(x, ".4g")
 
 
 def _e(x: Any) -> str:
-    return "–" if x is None else f"{x:.2e}"
+    return "–" if x is None else figure(x, ".2e")
 
 
 def _params_text(params: Mapping[str, Any]) -> str:

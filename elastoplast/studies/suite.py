@@ -233,6 +233,27 @@ def write_profile(record: Mapping[str, Any], out_dir: str | Path, field: str = "
     return Path(out_dir)
 
 
+def check_instances(instances: Mapping[str, Path]) -> None:
+    """Read every problem file of a suite before any run, as a campaign checks its cases:
+    bad input is refused naming the file and the field (it was timed as a failure), and
+    so is depth control, which a suite does not time (its solves are a root search)."""
+    import warnings
+
+    from elastoplast.problem.definition import load_problem
+
+    for path in instances.values():
+        with warnings.catch_warnings():  # said again by the runs that meet them
+            warnings.simplefilter("ignore")
+            try:
+                problem = load_problem(path)
+            except InputError as exc:
+                raise InputError(f"{path.name}: {exc.field}", exc.message) from None
+        if problem.displacement is not None or problem.displacement_path is not None:
+            key = "displacement" if problem.displacement is not None else "displacement_path"
+            raise InputError(f"{path.name}: load.{key}", "a suite times solves under a force (load.force, load.path); "
+                                                        "depth control is solved by 'elastoplast solve'")
+
+
 def run_suite(suite_dir: str | Path, methods: Sequence[str], *, out: str | Path, tol: float = 1e-6,
               time_limit: float | None = None, options: Mapping[str, Any] | None = None,
               scheduler: str | None = None, client: Any = None, n_workers: int | None = None,
@@ -248,6 +269,7 @@ def run_suite(suite_dir: str | Path, methods: Sequence[str], *, out: str | Path,
 
     per_method = suite_options(methods, tol, time_limit, options)
     instances = suite_instances(suite_dir)
+    check_instances(instances)
     check_output_dir(out, "out")
     specs = [{"method": m, "options": per_method[m], "problem": str(path), "name": name}
              for name, path in instances.items() for m in methods]

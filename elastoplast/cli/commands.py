@@ -185,6 +185,8 @@ def _bounds(args: argparse.Namespace) -> int:
     bracket = "" if args.no_bracket else (f"; U in [{figure(report.U_lower, '.6g')}, "
                                           f"{figure(report.U_upper, '.6g')}]")
     used = {"local": "local field", "global": "global program"}[lower_kind(report.lower)]
+    if disc.problem.axisymmetric and args.lower in (None, "auto"):
+        used += ", the only one in axisymmetry so far"
     print(f"energy in [{figure(b.energy_lower, '.8g')}, {figure(b.energy_upper, '.8g')}] (relative gap "
           f"{figure(b.energy_gap_rel, '.2e')}, lower bound: {used}){bracket} (discrete U = {figure(sol.U, '.6g')}); "
           f"stress error <= {figure(b.stress_error_bound, '.4g')} ({figure(100 * b.stress_error_bound_rel, '.2f')}%); "

@@ -168,3 +168,17 @@ def test_lower_bound_choice_and_the_command_line(tmp_path, capsys):
     assert summary["bounds_certified"] and summary["lower_bound_kind"] == "global"
     assert summary["energy_lower"] <= summary["energy_upper"]
     assert summary["U_lower"] <= summary["U_upper"]
+
+
+def test_adapt_on_an_axisymmetric_problem(tmp_path, capsys):
+    """adapt with the global lower bound: every step certified, the gap falling, the local
+    indicators the axisymmetric ones (their sum is the gap); --lower local refused first."""
+    problem = write_toml(tmp_path / "p.toml", sphere_problem(divisions=(8, 8)))
+    code = main(["adapt", str(problem), "--lower", "local", "--quiet", "--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--lower" in err and "axisymmetric" in err
+    result = ep.solve_adaptive(ep.problem_from_dict(sphere_problem(divisions=(8, 8))),
+                               ep.AdaptOptions(rtol=0.1, bracket="never", compare_uniform=False, progress=False))
+    gaps = [s.gap_rel for s in result.steps]
+    assert all(s.certified and s.lower == "global" for s in result.steps)
+    assert gaps[-1] <= 0.1 < gaps[0] and result.steps[-1].n_elements > result.steps[0].n_elements

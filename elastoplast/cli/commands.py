@@ -291,7 +291,7 @@ def _limit(args: argparse.Namespace) -> int:
 
 
 def _adapt(args: argparse.Namespace) -> int:
-    from elastoplast.adapt.loop import check_adaptable
+    from elastoplast.adapt.loop import check_adaptable, check_lower_available
     from elastoplast.adapt.records import AdaptOptions
     from elastoplast.cli.adapt import run_adapt_command
     from elastoplast.solvers.registry import get_method
@@ -329,6 +329,10 @@ def _adapt(args: argparse.Namespace) -> int:
         raise InputError(flags.get(exc.field, f"--{exc.field.replace('_', '-')}"), exc.message) from None
     disc = _discretize(path, data, args.quiet, f"adaptive refinement to rtol {options.rtol:g}")
     check_adaptable(disc.problem)
+    try:
+        check_lower_available(disc.problem, options)
+    except InputError as exc:
+        raise InputError("--lower", exc.message) from None
     descent_unused(args.descent, disc.material.hardening, args.lower, None)
     return EXIT_OK if run_adapt_command(disc.problem, options, args.out) else EXIT_NOT_CONVERGED
 

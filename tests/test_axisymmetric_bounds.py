@@ -83,6 +83,10 @@ def test_vertex_rule_is_an_over_estimate_that_tightens():
     with pytest.raises(InputError) as info:
         ep.upper_bound(disc, sol, subdivisions=0)
     assert info.value.field == "subdivisions"
+    # a candidate with u_r != 0 on the axis is not in H1 of the solid: no bound
+    u = np.array(disc.full_displacement(sol.u) if np.ndim(sol.u) == 1 else sol.u, dtype=float).reshape(-1, 2)
+    u[disc.mesh.points[:, 0] == 0, 0] = 1e-6
+    assert not ep.upper_bound(disc, (u, sol.U)).certified
 
 
 def test_certificate_refuses_broken_fields():

@@ -106,7 +106,8 @@ def ring_element_energy(disc: Discretization, v: np.ndarray, eps: np.ndarray, su
     convex, so ``int_T W r <= (|T| / 3) sum_i r_i W(eps_0 + e_i n_theta)`` (vertices on the
     axis drop out). With ``subdivisions = k`` the same rule is applied on each of the
     ``k x k`` sub-triangles of T (the field is P1 on each): tighter, still a bound.
-    ``eps`` are the element strains of v (only the in-plane rows are read)."""
+    ``eps`` are the element strains of v (only the in-plane rows are read). A field with
+    ``v_r != 0`` on the axis has infinite energy (it is not in H1 of the solid of revolution)."""
     bary, count = sub_lattice(subdivisions)
     cells = disc.mesh.cells
     r = np.maximum(disc.mesh.points[cells, 0], 0.0)  # (n, 3)
@@ -118,7 +119,8 @@ def ring_element_energy(disc: Discretization, v: np.ndarray, eps: np.ndarray, su
         strain = np.array(eps, dtype=float)
         with np.errstate(all="ignore"):
             strain[:, 2] = np.where(rj > 0, vj / np.where(rj > 0, rj, 1.0), 0.0)
-        total += c * rj * hencky_energy_density(disc.material, strain)
+            # u_r != 0 on the axis: not in H1 of the body of revolution (infinite energy, not certified)
+            total += np.where((rj > 0) | (vj == 0), c * rj * hencky_energy_density(disc.material, strain), np.inf)
     return 2.0 * np.pi * area / (3.0 * subdivisions**2) * total
 
 

@@ -178,7 +178,7 @@ def test_refusals():
     refused({**d, "boundary": {"clamped": [], "contact": ["bottom"]}}, "boundary")  # axial translation free
 
 
-def test_perfect_plasticity_and_bounds_are_refused():
+def test_perfect_plasticity_and_the_limit_load_are_refused():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         disc = ep.discretize(ep.problem_from_dict(sphere_problem(hardening=0.0)))
@@ -188,7 +188,7 @@ def test_perfect_plasticity_and_bounds_are_refused():
     disc = ep.discretize(ep.problem_from_dict(sphere_problem()))
     sol = ep.solve(disc, method="conic", progress=False)
     with pytest.raises(ep.InputError) as info:
-        ep.upper_bound(disc, sol)
+        ep.static_limit_load(disc)
     assert info.value.field == "mesh.axisymmetric"
 
 

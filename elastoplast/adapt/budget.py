@@ -40,7 +40,8 @@ def lower_bound_budget(dim: int, options: AdaptOptions, hardening: bool = True) 
     bound only its memory (and ``lower_max_elements`` when given). ``"auto"`` takes the
     global program up to :data:`~elastoplast.bounds.lower.AUTO_GLOBAL_MAX_ELEMENTS`, so its
     budget is the local bound's when the global program fits up to there, else the global
-    program's (``hardening`` False: the global program, the only lower bound with H = 0)."""
+    program's (``hardening`` False: the global program, the only lower bound with H = 0 and,
+    so far, in axisymmetric models: :func:`has_local_bound`)."""
     from elastoplast.bounds.lower import AUTO_GLOBAL_MAX_ELEMENTS
 
     kind = options.lower if hardening else "global"
@@ -48,6 +49,12 @@ def lower_bound_budget(dim: int, options: AdaptOptions, hardening: bool = True) 
     if kind == "global" or (kind == "auto" and glob[1] < AUTO_GLOBAL_MAX_ELEMENTS[dim]):
         return glob
     return kind_budget(dim, options, "local")
+
+
+def has_local_bound(problem) -> bool:
+    """Whether the local lower bound can run on ``problem``: H > 0 and not axisymmetric (the
+    local construction in ``tau = r sigma`` is not built yet)."""
+    return problem.material.hardening > 0 and not problem.axisymmetric
 
 
 def kind_budget(dim: int, options: AdaptOptions, kind: str) -> tuple[str, int]:

@@ -73,11 +73,11 @@ from typing import Callable
 
 import numpy as np
 
-from elastoplast.fem.axisymmetry import check_not_axisymmetric
 from elastoplast.adapt.budget import (
     MIN_GROWTH,
     affordable_elements,
     bracket_seconds,
+    has_local_bound,
     lower_bound_budget,
     next_mesh,
 )
@@ -248,18 +248,26 @@ def adapt(problem: Problem, options: AdaptOptions = AdaptOptions(),
     second mesh could not be solved (and P1 tetrahedra lock anyway).
     """
     check_adaptable(problem)
-    return _loop(problem, AdaptOptions.of(options), report, adaptive=True)
+    options = AdaptOptions.of(options)
+    check_lower_available(problem, options)
+    return _loop(problem, options, report, adaptive=True)
 
 
 def check_adaptable(problem: Problem) -> None:
-    """Refuse what :func:`adapt` cannot run on, before any work: not a Problem, an
-    axisymmetric model, or H = 0."""
+    """Refuse what :func:`adapt` cannot run on, before any work: not a Problem, or H = 0."""
     expect(problem, Problem, "problem", "ep.problem_from_dict(data) or ep.load_problem(path)")
-    check_not_axisymmetric(problem, "adaptive refinement (its certified bounds)")
     if problem.material.hardening == 0:
         raise InputError("material.hardening", "adaptive refinement needs hardening > 0: bisection breaks the "
                                                "crossed pattern, and with H = 0 P1 meshes that are not crossed lock; "
                                                "'elastoplast limit' brackets the limit load")
+
+
+def check_lower_available(problem: Problem, options: AdaptOptions) -> None:
+    """Refuse the local lower bound on an axisymmetric model, before any work (the global
+    program is the one lower bound there so far; ``"auto"`` chooses it)."""
+    if problem.axisymmetric and options.lower == "local":
+        raise InputError("lower", "the local lower bound is not available for axisymmetric models yet: use the "
+                                  "global program ('global', or 'auto', which chooses it there)")
 
 
 def uniform(problem: Problem, options: AdaptOptions = AdaptOptions(), max_elements: int | None = None,
@@ -267,8 +275,8 @@ def uniform(problem: Problem, options: AdaptOptions = AdaptOptions(), max_elemen
     """The same pipeline refining every element (the comparison of the issue),
     up to ``max_elements`` (default: the options'), without U brackets."""
     expect(problem, Problem, "problem", "ep.problem_from_dict(data) or ep.load_problem(path)")
-    check_not_axisymmetric(problem, "adaptive refinement (its certified bounds)")
     options = AdaptOptions.of(options)
+    check_lower_available(problem, options)
     opts = replace(options, max_elements=max_elements or options.max_elements, bracket="never")
     return _loop(problem, opts, report, adaptive=False)
 
@@ -284,7 +292,7 @@ def _loop(problem: Problem, options: AdaptOptions, report, adaptive: bool) -> Ad
     mesh, state, start = problem.mesh, None, None
     steps: list[Step] = []
     meshes: list[Mesh] = []
-    lower_name, lower_limit = lower_bound_budget(problem.dim, options, problem.material.hardening > 0)
+    lower_name, lower_limit = lower_bound_budget(problem.dim, options, has_local_bound(problem))
     if mesh.n_elements > lower_limit:  # before any work (the next meshes are planned under it)
         raise InputError("mesh", f"{mesh.n_elements:,} elements: above {lower_name} ({lower_limit:,} elements for "
                                  "its lower bounds in a row); start from a coarser mesh")

@@ -16,7 +16,6 @@ import numpy as np
 
 from elastoplast.bounds.upper import UpperBound
 from elastoplast.errors import InputError, expect
-from elastoplast.fem.axisymmetry import check_not_axisymmetric
 from elastoplast.fem.discretize import Discretization
 from elastoplast.certificate.kkt import real_number
 
@@ -89,6 +88,8 @@ def combine(upper: UpperBound, lower) -> Bounds:
         d = upper.points.shape[1]
         w = upper.u[cf, d - 1] - upper.V  # v_d - V at the facet vertices
         measure = facet_measure(upper.points[cf])
+        if lower.field.hoop is not None:  # axisymmetric: lam is the traction r p of tau = r sigma, in revolution
+            measure = 2.0 * np.pi * measure
         facet = measure * np.einsum("fa,ab,fb->f", lower.field.lam, mass_matrix(d - 1), w) + local.facet_psi_work
         ordered = bracket_holds(lo, hi)
         # a gap below 0 within round-off is 0; an inverted bracket has no error bound
@@ -246,7 +247,6 @@ def check_lower_bound_fits(disc: Discretization, options=None, factor: float = 1
     (:func:`~elastoplast.bounds.lower.lower_bound_bytes`, with its solve, the sweeps alone:
     :func:`local_descent` drops the descent where it does not fit)
     exceeds the memory available. Returns the kind, ``"global"`` or ``"local"``."""
-    check_not_axisymmetric(disc.problem, "the certified bounds")
     from elastoplast.bounds.lower import LowerBoundOptions, check_lower_bound_size, lower_bound_bytes, lower_bound_kind
     from elastoplast.limits import check_memory
 

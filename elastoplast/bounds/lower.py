@@ -222,9 +222,16 @@ def lower_bound_kind(disc: Discretization, options: "LowerBoundOptions | None" =
     """``"global"`` or ``"local"``: the lower bound ``options.kind`` asks for on ``disc``.
     ``"auto"``: the global program when H = 0 (the only lower bound there) or the mesh has at
     most :data:`AUTO_GLOBAL_MAX_ELEMENTS` elements, the local bound otherwise. ``"local"``
-    with H = 0 is refused (``InputError('kind')``)."""
+    with H = 0 is refused (``InputError('kind')``). Axisymmetric models: the global program
+    (``"auto"`` chooses it; ``"local"`` is refused: the local construction in ``tau = r sigma``
+    is not built yet)."""
     options = LowerBoundOptions.of(options, "lower_options")
     hardening = disc.material.hardening > 0
+    if disc.problem.axisymmetric:
+        if options.kind == "local":
+            raise InputError("kind", "the local lower bound is not available for axisymmetric models yet: use the "
+                                     "global program ('global', or 'auto', which chooses it there)")
+        return "global"
     if options.kind == "local" and not hardening:
         raise InputError("kind", "the local lower bound needs hardening > 0 (with H = 0 only the global program "
                                  "keeps the stresses within the yield surface): choose 'global' or 'auto'")

@@ -5,7 +5,16 @@ tractions ``lam`` on the contact zone gives the lower bound ``-J(tau, eta, lam) 
 the continuous problem when it is statically and plastically admissible. This module
 holds the field (:class:`StaticField`), its dual energy (:func:`dual_energy`, with
 ``int lam psi`` never under-estimated through :func:`psi_weights`), and the
-solver-independent check of its admissibility (:func:`certify_static`)."""
+solver-independent check of its admissibility (:func:`certify_static`).
+
+In an axisymmetric model (docs/bounds.md, "Axisymmetric models") the field is written in
+``tau = r sigma``: ``tau`` holds its vertex values (the hoop slot ``r_a sigma_thth``),
+``hoop`` the hoop stress ``sigma_thth``, constant per element, and ``lam`` the traction
+``r p`` of ``tau`` on Γ0 (p the pressure). Equilibrium is ``div tau = (sigma_thth, 0)``,
+``tau n`` is continuous and ``tau = 0`` on the axis; the stress at a vertex off the axis
+is ``sigma_a = tau_a / r_a``, every stress in the element is a convex combination of
+these, and the energy is the vertex rule ``2 pi (|T| / 3) sum_a r_a (1/2 A sigma_a:sigma_a
++ eta_a^2 / 2H)``, an over-estimate of the exact integral (:func:`ring_vertex_stress`)."""
 
 from __future__ import annotations
 
@@ -14,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from elastoplast.errors import InputError
-from elastoplast.fem.assembly import STRAIN_ROWS, simplex_geometry
+from elastoplast.fem.assembly import STRAIN_ROWS, element_geometry, simplex_geometry
 from elastoplast.fem.discretize import Discretization
 from elastoplast.fem.material import n_components, von_mises
 from elastoplast.limits import blocks
@@ -94,7 +103,9 @@ class StaticField:
     plane strain with tau33), ``eta (n_el, d+1)`` hardening stresses at the vertices,
     ``contact_facets (n_cf, d)`` node indices of the Γ0 facets (sorted per facet),
     ``lam (n_cf, d)`` contact pressure at their vertices (in that node order),
-    ``force`` the F it balances.
+    ``force`` the F it balances. In an axisymmetric model ``tau`` is ``r sigma`` at the
+    vertices, ``lam`` the traction ``r p`` of tau on Γ0 and ``hoop (n_el,)`` the hoop
+    stress of each element (module docstring); None elsewhere.
     """
 
     tau: np.ndarray
@@ -102,6 +113,24 @@ class StaticField:
     contact_facets: np.ndarray
     lam: np.ndarray
     force: float
+    hoop: np.ndarray | None = None
+
+
+def vertex_radii(disc: Discretization) -> np.ndarray:
+    """``r_a >= 0`` at the element vertices ``(n_el, 3)`` of an axisymmetric model (a
+    vertex at ``r <= 0`` is on the axis)."""
+    return np.maximum(disc.mesh.points[disc.mesh.cells, 0], 0.0)
+
+
+def ring_vertex_stress(disc: Discretization, field: StaticField) -> tuple[np.ndarray, np.ndarray]:
+    """``(sigma, off_axis)``: the stresses ``sigma_a = (tau_a / r_a, sigma_thth)`` at the
+    element vertices ``(n_el, 3, k)`` (zero on the axis) and the mask of the vertices off
+    the axis, where they are defined."""
+    r = vertex_radii(disc)
+    off = r > 0
+    sigma = np.where(off[..., None], np.asarray(field.tau, dtype=float) / np.where(off, r, 1.0)[..., None], 0.0)
+    sigma[..., 2] = np.where(off, np.asarray(field.hoop, dtype=float)[:, None], 0.0)
+    return sigma, off
 
 
 def check_static_field(disc: Discretization, field: StaticField) -> None:
@@ -111,6 +140,12 @@ def check_static_field(disc: Discretization, field: StaticField) -> None:
     if np.shape(field.tau) != (disc.n_elements, disc.dim + 1, disc.k):
         raise InputError("field", f"is the field of another mesh: tau has shape {np.shape(field.tau)}, this "
                                   f"discretisation's ({disc.n_elements}, {disc.dim + 1}, {disc.k})")
+    ring = disc.problem.axisymmetric
+    if ring and np.shape(field.hoop) != (disc.n_elements,):
+        raise InputError("field.hoop", f"an axisymmetric field needs the hoop stress of each of the {disc.n_elements} "
+                                       f"elements, got shape {np.shape(field.hoop)}")
+    if not ring and field.hoop is not None:
+        raise InputError("field.hoop", "is for axisymmetric models only")
 
 
 @dataclass(frozen=True)
@@ -132,10 +167,13 @@ class LocalTerms:
 
 def local_terms(disc: Discretization, field: StaticField, psi: PsiWeights | None = None,
                 topo: FacetTopology | None = None) -> LocalTerms:
-    """The terms of :class:`LocalTerms`, integrated exactly with the P1 mass matrices."""
+    """The terms of :class:`LocalTerms`, integrated exactly with the P1 mass matrices (an
+    axisymmetric model: :func:`ring_local_terms`)."""
     d, m = disc.dim, disc.material
     topo = disc.facet_topology if topo is None else topo
     psi = psi_weights(disc, topo) if psi is None else psi
+    if disc.problem.axisymmetric:
+        return ring_local_terms(disc, field, psi)
     M = mass_matrix(d)
     A = m.compliance(d)
     tau = np.asarray(field.tau, dtype=float)
@@ -148,6 +186,28 @@ def local_terms(disc: Discretization, field: StaticField, psi: PsiWeights | None
         element_stress=disc.volumes[:, None] * tau.mean(axis=1),
         facet_force=measure * field.lam.mean(axis=1),
         facet_psi_work=np.einsum("fa,fa->f", psi.q, field.lam),
+    )
+
+
+def ring_local_terms(disc: Discretization, field: StaticField, psi: PsiWeights) -> LocalTerms:
+    """:class:`LocalTerms` of an axisymmetric field (module docstring): the energy by the
+    vertex rule; ``element_stress = 2 pi |T| mean_a tau_a``, so that its product with the
+    element strains of a P1 field (hoop row ``mean v_r / r_T``) is ``int_T sigma:eps(v) dV``;
+    the facet terms those of the traction ``lam = r p`` times ``2 pi``."""
+    m = disc.material
+    area, _ = element_geometry(disc.mesh)
+    sigma, off = ring_vertex_stress(disc, field)
+    density = 0.5 * np.einsum("eai,ij,eaj->ea", sigma, m.compliance(2), sigma)
+    if m.hardening > 0:
+        density = density + 0.5 * np.asarray(field.eta, dtype=float) ** 2 / m.hardening
+    r = vertex_radii(disc)
+    tau = np.asarray(field.tau, dtype=float)
+    measure = facet_measure(disc.mesh.points[field.contact_facets])
+    return LocalTerms(
+        element_energy=2.0 * np.pi * area / 3.0 * np.einsum("ea,ea->e", r, np.where(off, density, 0.0)),
+        element_stress=2.0 * np.pi * area[:, None] * tau.mean(axis=1),
+        facet_force=2.0 * np.pi * measure * field.lam.mean(axis=1),
+        facet_psi_work=2.0 * np.pi * np.einsum("fa,fa->f", psi.q, field.lam),
     )
 
 
@@ -183,6 +243,13 @@ class StaticCertificate:
       ``sqrt(3/2)|dev tau| <= sigma_y + eta`` the pair ``(tau, 0)`` is in D and gives a
       larger right-hand side, so ``yield_excess`` is the only condition on eta.
 
+    Axisymmetric models (``tau = r sigma``, module docstring): ``equilibrium`` is that of
+    ``div tau - (sigma_thth, 0)``; the scale uses ``F / (2 pi |Γ0|)`` and the force balance
+    ``2 pi int_Γ0 lam``; ``yield_excess`` is checked on ``sigma_a = tau_a / r_a`` at the
+    vertices off the axis; ``axis`` is ``max |tau_a| / s`` over the vertices on the axis
+    (tau must vanish there), ``hoop`` is ``max |tau_a,thth - r_a sigma_thth| / s`` (tau's hoop
+    slot is ``r sigma_thth``). Both are 0 elsewhere.
+
     ``passed`` when every residual is at most ``tol``.
     """
 
@@ -198,6 +265,8 @@ class StaticCertificate:
     hardening: float
     scale: float
     tol: float
+    axis: float = 0.0
+    hoop: float = 0.0
 
     def as_dict(self) -> dict[str, float]:
         return {k: float(getattr(self, k)) for k in RESIDUALS}
@@ -217,7 +286,7 @@ class StaticCertificate:
 
 
 RESIDUALS = ("equilibrium", "traction_jump", "free_traction", "symmetry_traction", "contact_normal",
-             "contact_tangential", "force_balance", "contact_sign", "yield_excess", "hardening")
+             "contact_tangential", "force_balance", "contact_sign", "yield_excess", "hardening", "axis", "hoop")
 
 
 #: elements or facets per block of :func:`certify_static`'s batched operators
@@ -253,6 +322,8 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
     F = float(disc.force)  # the problem's load, not the one the field claims
     if not np.array_equal(np.asarray(field.contact_facets), topo.contact_facets):
         raise InputError("field.contact_facets", "do not match the contact facets of the problem")
+    ring = disc.problem.axisymmetric
+    measure_factor = 2.0 * np.pi if ring else 1.0  # the force of the traction lam: 2 pi int lam in revolution
 
     # equilibrium: div of the linear field from the barycentric gradients (by blocks of
     # elements: the operators of a whole split mesh at once are three times the field's size)
@@ -261,12 +332,15 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
     for sl in blocks(tau.shape[0], CERTIFY_BLOCK):
         _, grads = simplex_geometry(mesh.points, mesh.cells[sl])
         div[sl] = np.einsum("eadk,eak->ed", traction_operator(grads), tau[sl])
+        if ring:  # div tau = (sigma_thth, 0)
+            div[sl, 0] -= np.asarray(field.hoop, dtype=float)[sl]
         h[sl] = 1.0 / np.linalg.norm(grads, axis=2).max(axis=1)
 
     contact_measure = facet_measure(mesh.points[topo.contact_facets])
     # Mandel vectors are orthonormal coordinates: their norm is the tensor's Frobenius norm
     # (squared by einsum: np.linalg.norm would square a copy of the whole field first)
-    s = max(np.sqrt(_vmax(np.einsum("eak,eak->ea", tau, tau))), _vmax(lam), F / contact_measure.sum())
+    s = max(np.sqrt(_vmax(np.einsum("eak,eak->ea", tau, tau))), _vmax(lam),
+            F / (measure_factor * contact_measure.sum()))
 
     def traction(elements, vertices, nodes):
         nrm = outward_facet_normals(mesh.points, mesh.cells, elements, nodes)
@@ -283,7 +357,14 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
     sym = topo.fixed.any(axis=1) & ~topo.contact
     tb_signed = traction(topo.boundary_elements[topo.contact], topo.boundary_vertices[topo.contact],
                          topo.contact_facets)
-    vm = von_mises(tau.reshape(-1, disc.k)).reshape(eta.shape)
+    axis = hoop = 0.0
+    if ring:
+        sigma, off = ring_vertex_stress(disc, field)
+        vm = np.where(off, von_mises(sigma.reshape(-1, disc.k)).reshape(eta.shape), -np.inf)
+        axis = np.sqrt(_vmax(np.where(off, 0.0, np.einsum("eak,eak->ea", tau, tau)))) / s
+        hoop = _vmax(np.abs(tau[..., 2] - vertex_radii(disc) * np.asarray(field.hoop, dtype=float)[:, None])) / s
+    else:
+        vm = von_mises(tau.reshape(-1, disc.k)).reshape(eta.shape)
     return StaticCertificate(
         equilibrium=_vmax(np.linalg.norm(div, axis=1) * h) / s,
         traction_jump=jump / s,
@@ -291,10 +372,12 @@ def certify_static(disc: Discretization, field: StaticField, tol: float = CERTIF
         symmetry_traction=_vmax(np.where(zero, tb, 0.0)[sym]) / s,
         contact_normal=_vmax(np.abs(tb_signed[:, :, -1] - lam)) / s,
         contact_tangential=_vmax(np.where(zero, tb, 0.0)[topo.contact]) / s,
-        force_balance=abs(float(contact_measure @ lam.mean(axis=1)) - F) / F,
+        force_balance=abs(measure_factor * float(contact_measure @ lam.mean(axis=1)) - F) / F,
         contact_sign=_vmax(-lam) / s,
         yield_excess=_vmax(vm - m.yield_stress - eta) / m.yield_stress,
         hardening=0.0 if m.hardening > 0 else _vmax(np.abs(eta)) / m.yield_stress,
         scale=s,
         tol=tol,
+        axis=axis,
+        hoop=hoop,
     )

@@ -185,6 +185,8 @@ def _bounds(args: argparse.Namespace) -> int:
     bracket = "" if args.no_bracket else (f"; U in [{figure(report.U_lower, '.6g')}, "
                                           f"{figure(report.U_upper, '.6g')}]")
     used = {"local": "local field", "global": "global program"}[lower_kind(report.lower)]
+    if disc.problem.axisymmetric and args.lower in (None, "auto"):
+        used += ", the only one in axisymmetry so far"
     print(f"energy in [{figure(b.energy_lower, '.8g')}, {figure(b.energy_upper, '.8g')}] (relative gap "
           f"{figure(b.energy_gap_rel, '.2e')}, lower bound: {used}){bracket} (discrete U = {figure(sol.U, '.6g')}); "
           f"stress error <= {figure(b.stress_error_bound, '.4g')} ({figure(100 * b.stress_error_bound_rel, '.2f')}%); "
@@ -293,7 +295,7 @@ def _limit(args: argparse.Namespace) -> int:
 
 
 def _adapt(args: argparse.Namespace) -> int:
-    from elastoplast.adapt.loop import check_adaptable
+    from elastoplast.adapt.loop import check_adaptable, check_lower_available
     from elastoplast.adapt.records import AdaptOptions
     from elastoplast.cli.adapt import run_adapt_command
     from elastoplast.solvers.registry import get_method
@@ -331,6 +333,10 @@ def _adapt(args: argparse.Namespace) -> int:
         raise InputError(flags.get(exc.field, f"--{exc.field.replace('_', '-')}"), exc.message) from None
     disc = _discretize(path, data, args.quiet, f"adaptive refinement to rtol {options.rtol:g}")
     check_adaptable(disc.problem)
+    try:
+        check_lower_available(disc.problem, options)
+    except InputError as exc:
+        raise InputError("--lower", exc.message) from None
     descent_unused(args.descent, disc.material.hardening, args.lower, None)
     return EXIT_OK if run_adapt_command(disc.problem, options, args.out) else EXIT_NOT_CONVERGED
 

@@ -31,7 +31,6 @@ from elastoplast.bounds.lower import LowerBoundOptions, lower_bound_kind
 from elastoplast.bounds.upper import upper_bound
 from elastoplast.certificate.solution import check_solution
 from elastoplast.errors import InputError, expect
-from elastoplast.fem.axisymmetry import check_not_axisymmetric
 from elastoplast.fem.discretize import Discretization, check_hencky
 from elastoplast.references.solves import LOCAL_SOLVE_TOL, best_upper_bound, bracket_method, local_solution, solve_at
 from elastoplast.solvers.registry import solve
@@ -62,7 +61,6 @@ def certified_bounds(disc: Discretization, solution=None, method: str = "conic",
     """
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     check_hencky(disc, "the certified bounds")
-    check_not_axisymmetric(disc.problem, "the certified bounds")
     if solution is not None:
         check_solution(disc, solution, "solution", reads=("u",))
     lower_options = LowerBoundOptions.of(lower_options, "lower_options")

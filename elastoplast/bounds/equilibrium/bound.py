@@ -58,10 +58,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from elastoplast.bounds.equilibrium.program import Program, lower_bound_program
+from elastoplast.bounds.equilibrium.program import Program, Ring, lower_bound_program
 from elastoplast.bounds.equilibrium.repair import repair_static
 from elastoplast.bounds.lower import LimitLowerBound, LowerBound, LowerBoundOptions, check_lower_bound_size, lower_bound_solver
-from elastoplast.bounds.static import PsiWeights, StaticField, certify_static, local_terms, psi_weights
+from elastoplast.bounds.static import (PsiWeights, StaticField, certify_static, local_terms, psi_weights,
+                                       ring_vertex_stress, vertex_radii)
 from elastoplast.certificate.solution import Status
 from elastoplast.errors import InputError, expect
 from elastoplast.fem.axisymmetry import check_not_axisymmetric
@@ -109,6 +110,7 @@ class _Setup:
     nd: Discretization
     units: Units
     grads: np.ndarray
+    ring: Ring | None = None
 
 
 def lower_bound_setup(disc: Discretization, options: LowerBoundOptions, force: float | None = None, limit: bool = False) -> _Setup:
@@ -116,8 +118,11 @@ def lower_bound_setup(disc: Discretization, options: LowerBoundOptions, force: f
     topo = disc.facet_topology
     psi = psi_weights(disc, topo, options.psi_subdivisions)
     nd, units = nondimensionalize(disc if force is None else disc.with_force(force))
-    _, grads = element_geometry(disc.mesh)
-    return _Setup(topo, psi, nd, units, grads * units.length)
+    area, grads = element_geometry(disc.mesh)
+    ring = None
+    if disc.problem.axisymmetric:  # radii and areas in the program's length unit
+        ring = Ring(r=vertex_radii(disc) / units.length, area=area / units.length**2)
+    return _Setup(topo, psi, nd, units, grads * units.length, ring)
 
 
 def _scs(prog: Program, options: LowerBoundOptions) -> ConicAnswer:
@@ -148,13 +153,26 @@ def solve_program(disc: Discretization, prog: Program, options: LowerBoundOption
 
 
 def program_field(s: _Setup, prog: Program, x: np.ndarray, force: float) -> StaticField:
-    """User-unit field from program unknowns (eta left at zero)."""
+    """User-unit field from program unknowns (eta left at zero). Axisymmetric models: the
+    unknowns are the vertex stresses ``s_a`` and pressures p (:mod:`.program`); the field
+    is ``tau_a = r_a s_a`` (hoop slot ``r_a sigma_thth``, sigma_thth the mean hoop slot off
+    the axis), ``lam = r p``, exactly zero on the axis."""
     n, d, k = s.nd.n_elements, s.nd.dim, s.nd.k
     S = s.units.stress
     tau = x[prog.cols["tau"]].reshape(n, d + 1, k) / prog.weights[:, None, None] * S
     lam = (x[prog.cols["lam"]] / prog.lam_weights * S).reshape(-1, d)
-    return StaticField(tau=tau, eta=np.zeros((n, d + 1)), contact_facets=s.topo.contact_facets, lam=lam,
-                       force=float(force))
+    if s.ring is None:
+        return StaticField(tau=tau, eta=np.zeros((n, d + 1)), contact_facets=s.topo.contact_facets, lam=lam,
+                           force=float(force))
+    off = s.ring.off_axis
+    hoop = np.where(off, tau[..., 2], 0.0).sum(axis=1) / off.sum(axis=1)
+    r = s.ring.r * s.units.length
+    tau = np.where(off[..., None], r[..., None] * tau, 0.0)
+    tau[..., 2] = np.where(off, r, 0.0) * hoop[:, None]
+    ci = s.topo.contact_index
+    r_contact = np.maximum(r[s.topo.boundary_elements[ci][:, None], s.topo.boundary_vertices[ci]], 0.0)
+    return StaticField(tau=tau, eta=np.zeros((n, d + 1)), contact_facets=s.topo.contact_facets, lam=r_contact * lam,
+                       force=float(force), hoop=hoop)
 
 
 def repaired_field(disc: Discretization, s: _Setup, prog: Program, x: np.ndarray) -> tuple[StaticField, float, int]:
@@ -162,8 +180,13 @@ def repaired_field(disc: Discretization, s: _Setup, prog: Program, x: np.ndarray
     x, resid, zeroed = repair_static(prog, x)
     field = program_field(s, prog, x, disc.force)
     if prog.cols["eta"] is not None:
-        vm = von_mises(field.tau.reshape(-1, disc.k)).reshape(field.eta.shape)
         eta = x[prog.cols["eta"]].reshape(field.eta.shape) / prog.weights[:, None] * s.units.stress
+        if s.ring is None:
+            vm = von_mises(field.tau.reshape(-1, disc.k)).reshape(field.eta.shape)
+        else:  # yield on the vertex stresses off the axis; eta has no part on the axis
+            sigma, off = ring_vertex_stress(disc, field)
+            vm = von_mises(sigma.reshape(-1, disc.k)).reshape(field.eta.shape)
+            eta = np.where(off, eta, 0.0)
         field = replace(field, eta=np.maximum(eta, vm - disc.material.yield_stress))
     return field, resid, zeroed
 
@@ -188,7 +211,6 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
     """
     expect(disc, Discretization, "disc", "ep.discretize(problem)")
     check_hencky(disc, "the lower bound")
-    check_not_axisymmetric(disc.problem, "the lower bound")
     options = LowerBoundOptions.of(options)
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
@@ -206,7 +228,7 @@ def solve_lower_bound(disc: Discretization, options: LowerBoundOptions = LowerBo
     @elastic_first
     def scaled(nd_: Discretization, with_yield: bool):
         t1 = time.perf_counter()
-        prog = progs[with_yield] = lower_bound_program(nd_, s.topo, s.grads, q_nd, with_yield=with_yield)
+        prog = progs[with_yield] = lower_bound_program(nd_, s.topo, s.grads, q_nd, with_yield=with_yield, ring=s.ring)
         t2 = time.perf_counter()
         ans = solve_program(disc, prog, options, solver)
         timings["assemble"] = timings.get("assemble", 0.0) + t2 - t1

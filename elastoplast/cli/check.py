@@ -90,12 +90,7 @@ def run_check(problem_path: str | Path, answer_path: str | Path, tol: float | No
     answer = read_answer(answer_path, disc)
     if bounds:  # refused before the check runs, as the bounds would refuse it after
         from elastoplast.bounds.lower import SEQUENCE_MEMORY_FACTOR, LowerBoundOptions, check_lower_bound_size
-        from elastoplast.fem.axisymmetry import check_not_axisymmetric
 
-        try:
-            check_not_axisymmetric(disc.problem, "a continuum bound")
-        except InputError as exc:
-            raise InputError("--bounds", exc.message) from None
         check_lower_bound_size(disc, LowerBoundOptions(), factor=SEQUENCE_MEMORY_FACTOR)
     if not quiet:
         stresses = "sigma, xi as given" if answer["sigma"] is not None else "stresses by the return mapping of u"

@@ -50,12 +50,15 @@ SIZES = {
     "full": {
         "hertz_blocks": [5.0, 10.0, 20.0, 40.0, 80.0], "hertz_block_level": "L3",
         "hertz_levels": ["L1", "L2", "L3", "L4"],
-        "quarter_h": [(0.3, 0.35), (0.2, 0.25), (0.14, 0.18), (0.1, 0.13)], "quarter_L": 8.0,
+        "quarter_h": [(0.2, 0.25), (0.14, 0.18), (0.1, 0.13), (0.07, 0.1), (0.05, 0.08)], "quarter_L": 8.0,
         "quarter_forces": [0.25, 0.5, 1.0],
         "lambdas": [1.0, 2.0, 3.0, 5.0, 10.0, 20.0, 30.0, 50.0, 100.0, 150.0],
         "hardenings": [1e-3, 1e-2], "sweep_levels": ["L1", "L2", "L3"],
         "locking_lambdas": [30.0, 100.0], "locking_levels": ["L1", "L2", "L3", "L4"],
         "pr_lambdas": [30.0, 50.0, 100.0], "pr_steps": [10, 20], "pr_level": "L2",
+        "beyond_lambdas": [300.0, 1000.0], "beyond_levels": ["L2", "L3"],
+        "nu_values": [0.3, 0.49, 0.499], "nu_levels": ["L1", "L2", "L3", "L4"],
+        "pattern_block": 12.0, "pattern_n": 80, "pattern_lambda": 100.0,
         "op_level": "L3", "op_lambda": 50.0, "op_cone_lambda": 30.0, "op_load": 10, "op_unload": 8,
     },
     "quick": {
@@ -64,6 +67,8 @@ SIZES = {
         "lambdas": [1.0, 3.0, 30.0, 100.0], "hardenings": [1e-3], "sweep_levels": ["L1"],
         "locking_lambdas": [30.0], "locking_levels": ["L1", "L2"],
         "pr_lambdas": [30.0], "pr_steps": [5], "pr_level": "L1",
+        "beyond_lambdas": [300.0], "beyond_levels": ["L1"], "nu_values": [0.3, 0.499], "nu_levels": ["L1", "L2"],
+        "pattern_block": 12.0, "pattern_n": 24, "pattern_lambda": 100.0,
         "op_level": "L1", "op_lambda": 50.0, "op_cone_lambda": 30.0, "op_load": 5, "op_unload": 4,
     },
 }
@@ -103,14 +108,14 @@ def pressure_guess(lam: float) -> float:
 
 
 def meridian(level: str, sigma_y: float, H: float, force: float, *, block: float = BLOCK, shape: str = "sphere",
-             half_angle: float | None = None) -> ep.Discretization:
+             half_angle: float | None = None, nu: float = NU) -> ep.Discretization:
     """The meridian block [0, block]^2 on a graded mesh of ``level``, default boundary
     (the lateral face and the top clamped, the axis free), a sphere of radius R or a cone."""
     hc, growth = LEVELS[level]
     obstacle = {"shape": shape, "radius": R} if shape == "sphere" else {"shape": shape, "half_angle": half_angle}
     data = {"mesh": {"generator": "graded", "size": [block, block], "contact_radius": CONTACT_ZONE,
                      "h_contact": 0.5, "h_far": block / 10, "axisymmetric": True},
-            "material": {"E": E, "nu": NU, "yield_stress": sigma_y, "hardening": H},
+            "material": {"E": E, "nu": nu, "yield_stress": sigma_y, "hardening": H},
             "obstacle": obstacle, "load": {"force": force}}
     problem = ep.problem_from_dict(data)
     mesh = graded_mesh([block, block], CONTACT_ZONE, hc * A0, block / 10, growth=growth)
@@ -300,6 +305,63 @@ def locking_study(s: dict) -> dict:
     return {"rows": rows}
 
 
+def beyond_study(s: dict) -> dict:
+    """Lambda beyond the sweep (H/E = 1e-3): where c^2 and p_m settle."""
+    rows = [sphere_point(level, lam, 1e-3) for level in s["beyond_levels"] for lam in s["beyond_lambdas"]]
+    for r in rows:
+        print(f"    beyond {r['level']} Lambda={r['Lambda']:.4g}: pm/sy {r['pm_over_sy']:.3f} c2 {r['c2']:.3f} "
+              f"pile-up/U {r['pile_up_over_U']:.4f}", flush=True)
+    return {"rows": rows}
+
+
+def incompressible_study(s: dict) -> dict:
+    """Elastic Hertz as nu -> 1/2 on the graded levels: the element's volumetric locking
+    measured against a closed form (delta = a^2 / R with E* = E / (1 - nu^2))."""
+    rows = []
+    for nu in s["nu_values"]:
+        es = E / (1 - nu * nu)
+        F = 4 * es * A0**3 / (3 * R)
+        for level in s["nu_levels"]:
+            disc = meridian(level, 1e12, 1e4, F, block=20.0, nu=nu)
+            sol, t = solve(disc)
+            f = figures(disc, sol)
+            rows.append({"nu": nu, "level": level, "elements": f["elements"], "U_over_delta": f["U"] * R / A0**2,
+                         "a": f["a"], "a_active": f["a_active"], "a_free": f["a_free"],
+                         "p_peak_over_p0": f["p_peak"] / (3 * F / (2 * math.pi * A0**2)), "kkt": f["kkt"],
+                         "time_s": round(t, 2)})
+            print(f"    nu={nu} {level}: U/delta {rows[-1]['U_over_delta']:.4f}", flush=True)
+    return {"rows": rows}
+
+
+def pattern_case(axisymmetric: bool, pattern: str, s: dict) -> dict:
+    """A structured graded rectangle, both triangle patterns on the same nodes, at Lambda near
+    ``pattern_lambda``: a sphere in the meridian plane or a cylinder in plane strain (whole block)."""
+    lam, L, n = s["pattern_lambda"], s["pattern_block"], s["pattern_n"]
+    sigma_y = E_STAR * A0 / (lam * R)
+    if axisymmetric:
+        size, div, obstacle = [L, L], [n, n], {"shape": "sphere", "radius": R}
+        F = math.pi * A0**2 * pressure_guess(lam) * sigma_y
+    else:
+        size, div, obstacle = [2 * L, L], [2 * n, n], {"shape": "cylinder", "radius": R}
+        F = 2 * A0 * pressure_guess(lam) * sigma_y
+    data = {"mesh": {"generator": "rectangle", "size": size, "divisions": div, "grading": 3.0,
+                     "contact_radius": CONTACT_ZONE, "pattern": pattern, "axisymmetric": axisymmetric},
+            "material": {"E": E, "nu": NU, "yield_stress": sigma_y, "hardening": 1e-3 * E},
+            "obstacle": obstacle, "load": {"force": F}}
+    disc = ep.discretize(ep.problem_from_dict(data))
+    sol, t = solve(disc)
+    f = figures(disc, sol, sigma_y)
+    f.update(model="axisymmetric sphere" if axisymmetric else "plane-strain cylinder", pattern=pattern,
+             pile_up_over_U=f["pile_up"] / f["U"], time_s=round(t, 1))
+    print(f"    {f['model']} {pattern}: U {f['U']:.5g} c2 {f['c2']:.3f} pile-up/U {f['pile_up_over_U']:.4f} "
+          f"({f['elements']} el, {f['time_s']} s)", flush=True)
+    return f
+
+
+def pattern_study(s: dict) -> dict:
+    return {"rows": [pattern_case(axi, pattern, s) for axi in (False, True) for pattern in ("diagonal", "crossed")]}
+
+
 def first_yield_study(s: dict, hertz_levels: list[dict]) -> dict:
     """Lambda at first yield from the elastic solves (section 1), confirmed by an
     elastic-plastic solve 2% below and above on the finest of those meshes."""
@@ -430,6 +492,9 @@ def measure(mode: str, out: Path) -> dict:
     timed("quarter", lambda: quarter_study(s))
     timed("sweep", lambda: sweep_study(s))
     timed("locking", lambda: locking_study(s))
+    timed("beyond", lambda: beyond_study(s))
+    timed("incompressible", lambda: incompressible_study(s))
+    timed("patterns", lambda: pattern_study(s))
     timed("prandtl_reuss", lambda: prandtl_reuss_study(s))
     timed("nano_sphere", lambda: indentation_cycle(s, "sphere"))
     timed("nano_cone", lambda: indentation_cycle(s, "cone"))

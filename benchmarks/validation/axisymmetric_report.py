@@ -111,6 +111,38 @@ def locking_section(res: dict) -> str:
                      "kkt", "s"], rows))
 
 
+def locking_extra_section(res: dict) -> str:
+    out = []
+    b = res.get("beyond")
+    if b:
+        rows = [[r["level"], r["elements"], f"{r['Lambda']:.4g}", f"{r['pm_over_sy']:.4f}", f"{r['c2']:.4f}",
+                 f"{r['pile_up_over_U']:.4f}", f"{r['plastic_depth_over_a']:.2f}", f"{r['kkt']:.0e}"]
+                for r in b["rows"]]
+        out.append("### Beyond the sweep (H/E = 1e-3)\n\n" + table(
+            ["level", "triangles", "Lambda", "p_m/sy", "c^2", "pile-up/U", "zone depth/a", "kkt"], rows))
+    inc = res.get("incompressible")
+    if inc:
+        rows = [[g(r["nu"]), r["level"], r["elements"], f"{r['U_over_delta']:.4f}", f"{r['p_peak_over_p0']:.4f}",
+                 f"[{r['a_active']:.4f}, {r['a_free']:.4f}]", f"{r['kkt']:.0e}"] for r in inc["rows"]]
+        out.append("### Volumetric locking, elastic: Hertz as nu -> 1/2 (L = 20 a)\n\nF chosen so that Hertz's a = 1 "
+                   "for each nu (delta = a^2 / R = 0.02 whatever nu); U / delta against the same ratio at nu = 0.3 "
+                   "(the clamped block's stiffening).\n\n" + table(
+                       ["nu", "level", "triangles", "U / delta", "p_peak / p0", "a bracket", "kkt"], rows))
+    pat = res.get("patterns")
+    if pat:
+        rows = [[r["model"], r["pattern"], r["elements"], f"{r['Lambda']:.4g}", f"{r['U']:.6f}",
+                 f"{r['pm_over_sy']:.3f}", f"[{r['a_active']:.4f}, {r['a_free']:.4f}]", f"{r['c2']:.3f}",
+                 f"{r['pile_up_over_U']:.4f}", f"{r['kkt']:.0e}", r["time_s"]] for r in pat["rows"]]
+        out.append("### The two triangle patterns on the same nodes (H/E = 1e-3, Lambda near 100)\n\nStructured "
+                   "rectangles graded toward the contact (grading 3), block 12 a (plane strain: 24 a wide), "
+                   "diagonal (two triangles per cell) against crossed (four). In plane strain the crossed pattern "
+                   "holds incompressible fields and the diagonal one almost none; in the meridian plane neither "
+                   "does (docs/axisymmetry.md).\n\n" + table(
+                       ["model", "pattern", "triangles", "Lambda", "U", "p_m/sy", "a bracket", "c^2", "pile-up/U",
+                        "kkt", "s"], rows))
+    return "\n\n".join(out)
+
+
 def pr_section(res: dict) -> str:
     rows = [[g(r["Lambda_target"]), r["level"], r["steps"], f"{r['Lambda_hencky']:.3g}", f"{r['Lambda_pr']:.3g}",
              pct(r["U_diff"]), f"{r['pm_hencky']:.3f}", f"{r['pm_pr']:.3f}", f"{r['c2_hencky']:.3f}",
@@ -168,7 +200,8 @@ def render_report(res: dict) -> str:
              + f". Timings per section (s): {res.get('timings_s')}; total {res.get('total_time_s')} s.",
              "Figures: `axisymmetric.png` (p_m / sigma_y and c^2 against Lambda with the literature bands, the "
              "Oliver-Pharr cycle), `axisymmetric_hertz.png` (the finite-block trend and the 3D quarter model).",
-             hertz_section(res), first_yield_section(res), sweep_section(res), locking_section(res), pr_section(res),
+             hertz_section(res), first_yield_section(res), sweep_section(res), locking_section(res),
+             locking_extra_section(res), pr_section(res),
              nano_section(res)]
     return "\n\n".join(parts)
 

@@ -75,7 +75,7 @@ SIZES = {
 
 
 # ----------------------------------------------------------------------------
-# literature (MATH-free statements: K. L. Johnson, Contact Mechanics, 1985, ch. 4 and 6)
+# literature (K. L. Johnson, Contact Mechanics, 1985, ch. 4 and 6)
 # ----------------------------------------------------------------------------
 
 

@@ -55,21 +55,21 @@ SIZES = {
         "lambdas": [1.0, 2.0, 3.0, 5.0, 10.0, 20.0, 30.0, 50.0, 100.0, 150.0],
         "hardenings": [1e-3, 1e-2], "sweep_levels": ["L1", "L2", "L3"],
         "locking_lambdas": [30.0, 100.0], "locking_levels": ["L1", "L2", "L3", "L4"],
-        "pr_lambdas": [30.0, 50.0, 100.0], "pr_steps": [10, 20], "pr_level": "L2",
+        "pr_lambdas": [30.0, 50.0, 100.0], "pr_steps": [10, 20], "pr_level": "L2", "pr_levels": ["L1", "L2", "L3"],
         "beyond_lambdas": [300.0, 1000.0], "beyond_levels": ["L2", "L3"],
         "nu_values": [0.3, 0.49, 0.499], "nu_levels": ["L1", "L2", "L3", "L4"],
         "pattern_block": 12.0, "pattern_n": 80, "pattern_lambda": 100.0,
-        "op_level": "L3", "op_lambda": 50.0, "op_cone_lambda": 30.0, "op_load": 10, "op_unload": 8,
+        "op_level": "L3", "op_levels": ["L1", "L2"], "op_lambda": 50.0, "op_cone_lambda": 30.0, "op_load": 10, "op_unload": 8,
     },
     "quick": {
         "hertz_blocks": [5.0, 20.0], "hertz_block_level": "L1", "hertz_levels": ["L1", "L2"],
         "quarter_h": [(0.4, 0.5), (0.3, 0.35)], "quarter_L": 8.0, "quarter_forces": [0.5, 1.0],
         "lambdas": [1.0, 3.0, 30.0, 100.0], "hardenings": [1e-3], "sweep_levels": ["L1"],
         "locking_lambdas": [30.0], "locking_levels": ["L1", "L2"],
-        "pr_lambdas": [30.0], "pr_steps": [5], "pr_level": "L1",
+        "pr_lambdas": [30.0], "pr_steps": [5], "pr_level": "L1", "pr_levels": ["L1"],
         "beyond_lambdas": [300.0], "beyond_levels": ["L1"], "nu_values": [0.3, 0.499], "nu_levels": ["L1", "L2"],
         "pattern_block": 12.0, "pattern_n": 24, "pattern_lambda": 100.0,
-        "op_level": "L1", "op_lambda": 50.0, "op_cone_lambda": 30.0, "op_load": 5, "op_unload": 4,
+        "op_level": "L1", "op_levels": [], "op_lambda": 50.0, "op_cone_lambda": 30.0, "op_load": 5, "op_unload": 4,
     },
 }
 
@@ -384,14 +384,13 @@ def first_yield_study(s: dict, hertz_levels: list[dict]) -> dict:
 def prandtl_reuss_study(s: dict) -> dict:
     """Hencky against Prandtl-Reuss on the same monotone path of equal force steps up to F."""
     rows = []
-    level = s["pr_level"]
-    for lam in s["pr_lambdas"]:
+    for lam, level in [(lam, level) for lam in s["pr_lambdas"] for level in s["pr_levels"]]:
         sigma_y = E_STAR * A0 / (lam * R)
         F = math.pi * A0**2 * pressure_guess(lam) * sigma_y
         disc = meridian(level, sigma_y, 1e-3 * E, F)
         hencky, _ = solve(disc)
         fh = figures(disc, hencky, sigma_y)
-        for n in s["pr_steps"]:
+        for n in (s["pr_steps"] if level == s["pr_level"] else s["pr_steps"][:1]):
             t0 = time.perf_counter()
             forces = [F * (k + 1) / n for k in range(n)]
             res = ep.solve_path(disc, forces, "newton", progress=False)
@@ -408,7 +407,7 @@ def prandtl_reuss_study(s: dict) -> dict:
                          "kkt_pr": max(st.solution.kkt.worst for st in res.steps),
                          "time_s": round(time.perf_counter() - t0, 1)})
             r = rows[-1]
-            print(f"    PR Lambda={lam:g} n={n}: U_PR/U_H - 1 = {r['U_diff']:+.4f}, c2 {r['c2_hencky']:.3f} -> "
+            print(f"    PR {level} Lambda={lam:g} n={n}: U_PR/U_H - 1 = {r['U_diff']:+.4f}, c2 {r['c2_hencky']:.3f} -> "
                   f"{r['c2_pr']:.3f} ({r['time_s']} s)", flush=True)
     return {"rows": rows}
 
@@ -418,9 +417,9 @@ def prandtl_reuss_study(s: dict) -> dict:
 # ----------------------------------------------------------------------------
 
 
-def indentation_cycle(s: dict, shape: str) -> dict:
+def indentation_cycle(s: dict, shape: str, level: str | None = None) -> dict:
     """Load in equal steps to F_max, unload to 2% of it, Oliver-Pharr on the unloading."""
-    level = s["op_level"]
+    level = level or s["op_level"]
     if shape == "sphere":
         lam = s["op_lambda"]
         sigma_y = E_STAR * A0 / (lam * R)
@@ -497,6 +496,7 @@ def measure(mode: str, out: Path) -> dict:
     timed("patterns", lambda: pattern_study(s))
     timed("prandtl_reuss", lambda: prandtl_reuss_study(s))
     timed("nano_sphere", lambda: indentation_cycle(s, "sphere"))
+    timed("nano_sphere_levels", lambda: [indentation_cycle(s, "sphere", lv) for lv in s["op_levels"]])
     timed("nano_cone", lambda: indentation_cycle(s, "cone"))
     res["timings_s"] = timings
     return res

@@ -159,19 +159,19 @@ def nano_section(res: dict) -> str:
            "then unloading to 0.02 F_max; Oliver-Pharr of `certificate/oliver_pharr.py` (fit over F >= 0.5 F_max, "
            "eps = 0.75, beta = 1). 'true' uses the contact radius at the peak (bracket midpoint): A = pi a^2.\n"]
     rows = []
-    for key in ("nano_sphere", "nano_cone"):
-        n = res.get(key)
+    cycles = list(res.get("nano_sphere_levels", [])) + [res.get("nano_sphere"), res.get("nano_cone")]
+    for n in cycles:
         if not n or not n.get("oliver_pharr"):
             continue
         op = n["oliver_pharr"]
         shape = "sphere R = 50" if n["shape"] == "sphere" else f"cone {n['half_angle']} deg"
-        rows.append([shape, n["elements"], f"{n['sigma_y']:.4g}", f"{op['F_max']:.4g}", f"{op['h_max']:.5f}",
+        rows.append([shape, n["level"], n["elements"], f"{n['sigma_y']:.4g}", f"{op['F_max']:.4g}", f"{op['h_max']:.5f}",
                      f"{op['m']:.3f}" if op.get("m") else "-", f"{op['S']:.5g}", f"{op['h_c']:.5f}",
                      f"{op['hardness'] / n['sigma_y']:.3f}", f"{n['true_hardness'] / n['sigma_y']:.3f}",
                      f"{n['area_over_true']:.3f}", f"{op['E_r'] / op['E_star']:.4f}",
                      f"{n['E_r_true_area'] / op['E_star']:.4f}", f"{n['peak']['pile_up'] / op['h_max']:.4f}",
                      f"{n['kkt']:.0e}", n["time_s"]])
-    out.append(table(["indenter", "triangles", "sigma_y", "F_max", "h_max", "m", "S", "h_c", "H_OP/sy",
+    out.append(table(["indenter", "level", "triangles", "sigma_y", "F_max", "h_max", "m", "S", "h_c", "H_OP/sy",
                       "F/(pi a^2)/sy", "A_OP/A_true", "E_r/E*", "E_r(A_true)/E*", "pile-up/h_max", "kkt", "s"],
                      rows))
     for key in ("nano_sphere", "nano_cone"):
@@ -333,7 +333,8 @@ def findings(res: dict) -> str:
     pr = res["prandtl_reuss"]["rows"]
     out.append(
         "- **Hencky against Prandtl-Reuss** (same monotone force path): U_PR / U_H - 1 = "
-        + "; ".join(f"{pct(r['U_diff'])} at Lambda {r['Lambda_hencky']:.3g} ({r['steps']} steps)" for r in pr)
+        + "; ".join(f"{pct(r['U_diff'])} at Lambda {r['Lambda_hencky']:.3g} ({r['level']}, {r['steps']} steps)"
+                    for r in pr)
         + ". Prandtl-Reuss is the stiffer: the stress path of an element under a spreading contact is not "
         "proportional (the principal axes turn as the contact edge passes), and Hencky's deformation law answers a "
         "turning strain with the secant modulus where the flow law answers elastically. The difference grows with "
@@ -341,8 +342,14 @@ def findings(res: dict) -> str:
     n = res.get("nano_sphere")
     if n and n.get("oliver_pharr"):
         op = n["oliver_pharr"]
+        others = [m for m in res.get("nano_sphere_levels", []) if m.get("oliver_pharr")]
+        conv = ("; on the coarser levels " + ", ".join(
+            f"{m['level']}: E_r / E* {m['oliver_pharr']['E_r'] / m['oliver_pharr']['E_star']:.4f}, H_OP / sigma_y "
+            f"{m['oliver_pharr']['hardness'] / m['sigma_y']:.3f}, A_OP / pi a^2 {m['area_over_true']:.3f}"
+            for m in others) + "") if others else ""
         out.append(
-            f"- **Oliver-Pharr (sphere, Lambda about {g(n['Lambda'])}).** E_r / E* = {op['E_r'] / op['E_star']:.4f}, "
+            f"- **Oliver-Pharr (sphere, Lambda about {g(n['Lambda'])}, level {n['level']}{conv}).** E_r / E* = "
+            f"{op['E_r'] / op['E_star']:.4f}, "
             f"H_OP = {op['hardness'] / n['sigma_y']:.3f} sigma_y against F / (pi a^2) = "
             f"{n['true_hardness'] / n['sigma_y']:.3f} sigma_y at the peak. Two biases, each measured: the projected "
             f"area from h_c with eps = 0.75 is {n['area_over_true']:.3f} of the true pi a^2 (eps = 0.75 assumes "

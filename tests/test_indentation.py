@@ -126,6 +126,11 @@ def test_path_summary_holds_oliver_pharr_of_the_whole_force(tmp_path):
                          E=E, nu=NU, radius=20.0)
     assert op["S"] == again["S"] and op["F_max"] == 800.0 and op["step_peak"] == 2
     assert op["E_star"] == pytest.approx(E_STAR)
+    # the indentation figures after the last step are those of its force (110, the model's), not the path's
+    # largest (200): p_m = 4 * 110 / (pi a^2), a the midpoint of the last step's bracket
+    ind = record["indentation"]
+    a = 0.5 * (ind["contact_radius_active"] + ind["contact_radius_free"])
+    assert ind["mean_contact_pressure"] == pytest.approx(4 * forces[-1] / (np.pi * a * a), rel=1e-12)
     plot_path(tmp_path / "path.png", record)
     assert (tmp_path / "path.png").stat().st_size > 0
 

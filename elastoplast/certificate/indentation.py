@@ -47,7 +47,8 @@ def surface_nodes(disc: Discretization) -> np.ndarray:
     return np.unique(flat)
 
 
-def indentation_summary(disc: Discretization, sol: Solution, *, axisymmetric: bool = False) -> dict[str, Any]:
+def indentation_summary(disc: Discretization, sol: Solution, *, axisymmetric: bool = False,
+                        force: float | None = None) -> dict[str, Any]:
     """The indentation figures (keys below, lengths in the problem's units).
 
     - ``contact_radius_active``, ``contact_radius_free``: the radius (half-width in
@@ -66,6 +67,9 @@ def indentation_summary(disc: Discretization, sol: Solution, *, axisymmetric: bo
       contact (toward the indenter; 0 for sink-in), ``sink_in_at_edge``: u_d at the
       outermost active node over U; for a sphere, cylinder or paraboloid of radius R,
       ``contact_depth_ratio`` c^2 = a^2 / (2 R U) (1/2 for Hertz, > 1 with pile-up).
+
+    ``force``: the model's force that ``sol`` carries (default ``disc.force``); a
+    loading path's state after a step other than its largest passes that step's force.
     """
     check_solution(disc, sol, "sol")
     r = disc.contact_radii()
@@ -82,7 +86,7 @@ def indentation_summary(disc: Discretization, sol: Solution, *, axisymmetric: bo
     out["contact_radius_active"], out["contact_radius_free"] = r_a, r_f
     a = 0.5 * (r_a + r_f) if math.isfinite(r_f) else r_a
     share = 1.0 if axisymmetric else symmetry_share(disc)
-    force = disc.force / share
+    force = (disc.force if force is None else float(force)) / share
     planar = disc.dim == 2 and not axisymmetric
     area = (lambda rad: 2.0 * rad) if planar else (lambda rad: math.pi * rad * rad)
     out["symmetry_share"] = share

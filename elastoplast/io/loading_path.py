@@ -164,7 +164,7 @@ def path_summary(disc: Discretization, result: PathResult) -> dict[str, Any]:
     where both have one: its status and message, its forces (``force`` the largest),
     the last step's U, the worst KKT residual over the steps, the iterations and time
     of all steps, the residual imprint and the unloading slope, the Oliver-Pharr figures
-    (:func:`path_oliver_pharr`) and the indentation figures after the last step, and ``"path"``, one
+    (:func:`path_oliver_pharr`) and the indentation figures after the last step (at its force), and ``"path"``, one
     entry per step in order (:func:`step_entry`). A depth path (``control`` =
     ``"displacement"``) lists its prescribed ``displacements`` and, as ``forces``, the
     forces found at its steps."""
@@ -185,8 +185,8 @@ def path_summary(disc: Discretization, result: PathResult) -> dict[str, Any]:
         "iterations": sum(e["iterations"] for e in entries), "time_s": float(result.time_s),
         "residual_imprint": residual_imprint(result), "unloading_slope": unloading_slope(result),
         "oliver_pharr": path_oliver_pharr(disc, result),
-        "indentation": (indentation_summary(disc, path_solution(result), axisymmetric=disc.problem.axisymmetric)
-                        if result.steps else None),
+        "indentation": (indentation_summary(disc, path_solution(result), axisymmetric=disc.problem.axisymmetric,
+                                            force=result.steps[-1].force) if result.steps else None),
         "n_elements": disc.n_elements, "n_nodes": disc.mesh.n_nodes, "dim": disc.dim,
         "path": entries,
     }

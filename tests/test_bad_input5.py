@@ -378,3 +378,18 @@ def test_a_plug_in_that_ends_its_worker_process_is_a_failed_case(tmp_path, monke
     err = capfd.readouterr().err
     assert "internal error" not in err and " - distributed." not in err and "ERROR" not in err, err
     assert "KilledWorker" in err
+
+
+def test_small_strain_note_said_once_when_an_answer_is_judged_again():
+    """An outside method's Solution already carries the small-strain note; judging it
+    again (make_solution with its message) appended the note a second time. Said once."""
+    data = axisymmetric_data()
+    disc = ep.discretize(ep.problem_from_dict(data))
+    sol = ep.solve(disc, "newton")
+    big = 1e4 * np.asarray(sol.u)  # strains far beyond 0.1
+    first = make_solution(disc, method="x", status=ep.Status.CONVERGED, sigma=sol.sigma, xi=sol.xi,
+                          u_free=disc.free_displacement(big), U=sol.U, iterations=0, timings={})
+    again = make_solution(disc, method="x", status=ep.Status.CONVERGED, sigma=sol.sigma, xi=sol.xi,
+                          u_free=disc.free_displacement(big), U=sol.U, iterations=0, timings={}, message=first.message)
+    assert first.status is again.status is ep.Status.FAILED
+    assert "small-strain model" in first.message and again.message == first.message

@@ -198,8 +198,10 @@ def make_solution(
         message = f"{message}; the answer holds non-finite values" if message else "the answer holds non-finite values"
     if status is Status.CONVERGED:
         beyond = small_strain_note(disc, u_free)
-        if beyond:
-            status, message = Status.FAILED, f"{message}; {beyond}" if message else beyond
+        if beyond:  # said once, also when a method's message already says it (a plug-in judged again)
+            status = Status.FAILED
+            if beyond not in message:
+                message = f"{message}; {beyond}" if message else beyond
     return Solution(
         method=method,
         status=status,

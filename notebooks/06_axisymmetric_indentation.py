@@ -166,17 +166,22 @@ bx.set_ylabel("c² = a² / (2 R U)")
 bx.legend(fontsize=8)
 plt.show()
 for name, rows in sweep.items():
+    x = [E_star * contact_radius(ind) / (SY * R) for _, _, ind in rows]
+    yielded = [xi for xi, (_, sol, _) in zip(x, rows) if sol.plastic.any()]
+    elastic = [xi for xi, (_, sol, _) in zip(x, rows) if not sol.plastic.any()]
     disc, sol, ind = rows[-1]
-    x = E_star * contact_radius(ind) / (SY * R)
-    print(f"{name}: at E* a/(sigma_y R) = {x:.0f}, p_m = {ind['mean_contact_pressure'] / SY:.2f} sigma_y, "
-          f"c^2 = {ind['contact_depth_ratio']:.2f}, pile-up {ind['pile_up'] / (sol.U or 1):.3f} U")
+    print(f"{name}: no plastic element up to x = {max(elastic, default=float('nan')):.2f}, "
+          f"plastic from x = {min(yielded, default=float('nan')):.2f}; at x = {x[-1]:.0f}, "
+          f"p_m = {ind['mean_contact_pressure'] / SY:.2f} sigma_y, c^2 = {ind['contact_depth_ratio']:.2f}, "
+          f"pile-up {ind['pile_up'] / (sol.U or 1):.3f} U")
 
 # %% [markdown]
 # What to read in it. Below x ≈ 2.5 the points lie on Hertz's line and no element is
-# plastic; first yield comes where Hertz says, the first plastic elements appearing
-# between the points at x ≈ 1.5 and 3. Beyond it the pressure leaves the line and climbs
+# plastic; first yield comes where Hertz says: the last point without a plastic element
+# and the first with one (printed above) bracket x = 0.8π. Beyond it the pressure leaves the line and climbs
 # slowly, inside or near the expanding-cavity band. In the fully plastic range it reaches
-# Tabor's band and, with H / E = 10⁻², passes above it: the hardening raises the flow
+# Tabor's band; with H / E = 10⁻³ it ends at or just above it, with H / E = 10⁻² well
+# above it (on the full meshes about 3.1 and 3.9 σ_y at x ≈ 100): the hardening raises the flow
 # stress under the indenter (σ_y + ξ with ξ growing with the plastic strain), whereas
 # Tabor's 2.8–3.0 is for materials that barely harden (on the coarse meshes of the small
 # mode the contact radius is known only to a few elements, and the two hardenings can

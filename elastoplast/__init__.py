@@ -41,6 +41,8 @@ from elastoplast.bounds.bracket import element_indicators
 from elastoplast.adapt.loop import adapt as solve_adaptive, uniform as solve_uniform
 from elastoplast.adapt.records import AdaptOptions, AdaptResult, elements_at_gap, fitted_rate
 from elastoplast.io.loading_path import path_summary
+from elastoplast.certificate.indentation import indentation_summary
+from elastoplast.certificate.oliver_pharr import oliver_pharr
 from elastoplast.plots.figures import (draw_indicator, plot_gap_curves, plot_gaps, plot_indicator, plot_path,
                                        slice_polygons, zoom_window)
 
@@ -64,6 +66,8 @@ __all__ = [
     # subpackage of that name), the certificate's energy norm, loading-path summaries
     "solve_adaptive", "solve_uniform", "AdaptOptions", "AdaptResult", "elements_at_gap", "fitted_rate",
     "element_indicators", "energy_norm_sq", "path_summary",
+    # indentation: the figures of summary.json's "indentation", Oliver-Pharr on a load-unload curve
+    "indentation_summary", "oliver_pharr",
     # figures (elastoplast.plots: the only module importing matplotlib, lazily)
     "draw_indicator", "plot_gap_curves", "plot_gaps", "plot_indicator", "plot_path", "slice_polygons", "zoom_window",
 ]

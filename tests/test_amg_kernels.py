@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import elastoplast as ep
-from conftest import build, sphere_quarter_dict
+from conftest import ROOT, build, sphere_quarter_dict
 from elastoplast.certificate.kkt import certify, propagated, propagated_at_contact
 from elastoplast.fem.assembly import assemble
 from elastoplast.fem.discretize import nondimensionalize
@@ -239,3 +239,42 @@ def test_kept_columns_carried_to_a_new_face_equal_their_products(quarter):
             want = system.matvec(faces._V[:, j])
             assert np.allclose(faces._HV[:, j], want, rtol=0.0, atol=1e-12 * np.abs(want).max())
     assert sum(c > 0 for c in carried) >= 4  # new faces that carried kept columns over
+
+
+def test_axisymmetric_near_null_space_holds_the_meridian_rigid_motions():
+    """In the meridian plane the coarse levels must hold radial displacements too: with the
+    axial translation alone (the body's only rigid motion) pyamg warned "less target
+    vectors than blocksize" and CG needed 1000 iterations at 10k triangles."""
+    import warnings
+
+    from elastoplast.linalg.amg import BorderedSystem, pcg
+
+    data = ep.read_toml(ROOT / "problems" / "sphere_axisymmetric.toml")
+    data["mesh"]["divisions"] = [48, 48]
+    disc = ep.discretize(ep.problem_from_dict(data))
+    nd, units = nondimensionalize(disc)
+    lay = block_layout(nd, units.length)
+    B = near_null_space(lay)
+    assert B.shape == (lay.n_dofs, 3)
+    A = bsr(lay, constrain(lay, assemble(lay, nd.material.stiffness(nd.dim)), ~lay.free))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        amg = AMG(A, B, max_coarse=50)
+    system = BorderedSystem(A, amg)
+    f = lay.embed(nd.N.T @ np.ones(nd.n_contact), nd.free)
+    _, its, ok = pcg(system.matvec, system.precondition, f, None, 1e-10, 200)
+    assert ok and its <= 60, its
+
+
+def test_axisymmetric_newton_on_the_amg_path_warns_nothing():
+    import warnings
+
+    data = ep.read_toml(ROOT / "problems" / "sphere_axisymmetric.toml")
+    data["mesh"]["divisions"] = [24, 24]
+    disc = ep.discretize(ep.problem_from_dict(data))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        amg = ep.solve(disc, "newton", linear_solver="amg", tol=1e-8, progress=False)
+    direct = ep.solve(disc, "newton", linear_solver="auto", tol=1e-8, progress=False)
+    assert amg.converged and direct.converged
+    assert abs(amg.U - direct.U) <= 1e-6 * abs(direct.U)

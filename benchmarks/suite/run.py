@@ -26,6 +26,7 @@ ELEMENTS = {
     "expr3d-5k": 5_184, "flat3d-5k": 5_184, "cyl2d-6k": 6_400, "cyl2d-6k-soft": 6_400, "sphere3d-12k": 12_288,
     "sphere3d-12k-soft": 12_288, "cyl2d-crossed-13k": 12_800, "sphere3d-98k": 98_304, "cyl2d-100k": 102_400,
     "box3d-415k": 414_720, "box3d-1m": 1_007_616,
+    "sphere-axi-2k": 1_952, "bcone-axi-18k": 18_107, "sphere-axi-19k": 18_902,
 }
 QUICK = ["cyl2d-1k", "punch2d-msh", "quarter3d-3k", "expr2d-4k"]
 TITLE = "Performance profiles on the suite of instances"

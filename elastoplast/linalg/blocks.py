@@ -144,11 +144,20 @@ def block_rows(lay: BlockLayout, data: np.ndarray, dofs: np.ndarray) -> sp.csr_m
 
 
 def near_null_space(lay: BlockLayout) -> np.ndarray:
-    """Rigid-body motions of the nodes ``(n_dofs, 3 or 6; 1 in an axisymmetric model)``:
-    the near-null space of every stiffness-type matrix here (the clamped body has none
-    exactly, but they are the smooth, low-energy modes multigrid must coarsen well).
+    """The near-null space of multigrid ``(n_dofs, 3 or 6)``: the rigid-body motions of the
+    nodes, in an axisymmetric model those of the meridian plane (two translations and the
+    in-plane rotation). The clamped body has no null space, but these are the smooth,
+    low-energy modes each aggregate must represent. In axisymmetry only the axial
+    translation is a rigid motion of the whole body; the radial translation and the
+    rotation strain the hoops by u_r / r only, a term of lower order on an aggregate of
+    size h at radius r >> h, so they are low-energy modes of every aggregate off the axis.
+    With the axial translation alone (one vector per node block of two) the coarse levels
+    hold no radial displacement at all, pyamg warns "less target vectors than blocksize",
+    and CG stalls: measured on ``problems/sphere_axisymmetric.toml`` (elastic stiffness,
+    CG to 1e-10), 1000 iterations at 10,368 triangles and no convergence in 3000 at
+    100,352, against 48 and 54 with the three modes (75 and 86 with the two translations).
     Rotations are scaled to the size of the translations."""
-    modes = rigid_motions(lay.points, axisymmetric=lay.hoop is not None)
+    modes = rigid_motions(lay.points)
     return modes / np.linalg.norm(modes, axis=0)
 
 
